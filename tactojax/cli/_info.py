@@ -1,0 +1,57 @@
+"""``tactojax info DIR``: what a dataset holds (counts per object, image size, sensor)."""
+
+from __future__ import annotations
+
+from tactojax.cli._table import format_table, write_json
+
+
+def add_parser(commands) -> None:
+    parser = commands.add_parser("info", help="summarise a dataset, or list the object catalog",
+                                 description="Counts per object, image size and sensor of a dataset.")
+    parser.add_argument("dataset", nargs="?", help="dataset directory")
+    parser.add_argument("--json", metavar="PATH", help="also write the summary as JSON")
+    parser.add_argument("--objects", action="store_true", help="list the built-in object catalog")
+    parser.set_defaults(run=run)
+
+
+def run(args) -> int:
+    if args.objects:
+        return _list_objects(args)
+    if not args.dataset:
+        raise ValueError("give a dataset directory, or --objects to list the catalog")
+    from tactojax.io import dataset_summary
+
+    summary = dataset_summary(args.dataset)
+    metadata = summary.get("metadata", {})
+    sensor = metadata.get("sensor", {})
+    protocol = metadata.get("protocol", {})
+    image_shape = summary["schema"].get("image", {}).get("shape")
+    print(f"dataset   {summary['path']}")
+    print(f"imprints  {summary['count']} in {summary['chunks']} chunks ({summary['bytes'] / 1e6:.1f} MB)")
+    print(f"sensor    {sensor.get('name', '?')}, {sensor.get('mm_per_px', float('nan')):.4f} mm/px, image {image_shape}")
+    print(f"protocol  {protocol.get('name', '?')}")
+    groups = summary.get("groups") or {}
+    if groups:
+        print()
+        print(format_table(["object", "imprints"], [[name, count] for name, count in sorted(groups.items())]))
+    if args.json:
+        write_json(args.json, summary)
+    return 0
+
+
+def _list_objects(args) -> int:
+    from tactojax.objects import CATALOG
+
+    rows = []
+    for name in CATALOG:
+        from tactojax.objects import get_object
+
+        try:
+            obj = get_object(name)
+            rows.append([name, obj.group, "x".join(f"{e:.0f}" for e in obj.extents), obj.description])
+        except ImportError as error:
+            rows.append([name, "-", "-", f"unavailable: {error}"])
+    print(format_table(["object", "group", "size (mm)", "description"], rows))
+    if args.json:
+        write_json(args.json, {"objects": [dict(zip(["name", "group", "size_mm", "description"], r)) for r in rows]})
+    return 0

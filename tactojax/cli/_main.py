@@ -1,0 +1,39 @@
+"""``tactojax`` entry point: argument parsing and dispatch to the sub-commands."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tactojax.cli import _demo, _info, _simulate
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tactojax",
+        description="Tactile mapping and localization from high-resolution tactile imprints.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in (_simulate, _info, _demo):
+        module.add_parser(commands)
+    return parser
+
+
+class UserError(Exception):
+    """A problem with the user's input, printed without a traceback."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, ImportError, UserError) as error:
+        print(f"tactojax {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

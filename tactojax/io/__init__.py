@@ -1,0 +1,45 @@
+"""All disk I/O: taxim calibrations, meshes, datasets."""
+
+from tactojax.io._dataset import CorruptDatasetError as CorruptDatasetError
+from tactojax.io._dataset import Dataset as Dataset
+from tactojax.io._dataset import DatasetLockedError as DatasetLockedError
+from tactojax.io._dataset import DatasetWriter as DatasetWriter
+from tactojax.io._dataset import dataset_summary as dataset_summary
+from tactojax.io._dataset import infer_schema as infer_schema
+from tactojax.io._dataset import open_dataset as open_dataset
+from tactojax.io._imprints import dataset_metadata as dataset_metadata
+from tactojax.io._imprints import load_imprints as load_imprints
+from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
+from tactojax.io._mesh import InvalidMeshError as InvalidMeshError
+from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
+from tactojax.io._mesh import check_mesh as check_mesh
+from tactojax.io._mesh import load_mesh as load_mesh
+from tactojax.io._mesh import ycb_mesh_path as ycb_mesh_path
+from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
+from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
+from tactojax.io._taxim import TaximCalibration as TaximCalibration
+from tactojax.io._taxim import load_taxim_calibration as load_taxim_calibration
+from tactojax.io._taxim import taxim_calibration_dir as taxim_calibration_dir
+
+__all__ = [
+    "CorruptDatasetError",
+    "Dataset",
+    "DatasetLockedError",
+    "DatasetWriter",
+    "dataset_metadata",
+    "dataset_summary",
+    "infer_schema",
+    "load_imprints",
+    "open_dataset",
+    "simulate_to_dataset",
+    "InvalidMeshError",
+    "MESH_UNITS_TO_MM",
+    "check_mesh",
+    "load_mesh",
+    "ycb_mesh_path",
+    "TAXIM_SENSORS",
+    "MissingDataPackageError",
+    "TaximCalibration",
+    "load_taxim_calibration",
+    "taxim_calibration_dir",
+]

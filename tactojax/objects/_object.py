@@ -1,0 +1,36 @@
+"""TactileObject: a solid (analytic or mesh) with a name, a catalog group and its bounds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tactojax.objects._mesh import MeshSolid
+from tactojax.objects._primitives import Solid
+
+
+@dataclass(frozen=True, eq=False)
+class TactileObject:
+    """An object the simulator can touch, in its canonical object frame (mm)."""
+
+    name: str
+    solid: Solid | MeshSolid
+    """Analytic solid (JAX, differentiable) or a triangle mesh (Embree ray casting)."""
+    bounds: np.ndarray
+    """(2, 3) axis-aligned bounds (min, max) in the object frame, mm."""
+    group: str = "custom"
+    """'calibration' (paper section IV), 'table2' (section V), 'household' (section VI) or 'custom'."""
+    description: str = ""
+    attribution: str = ""
+    parameters: dict = field(default_factory=dict)
+    """True dimensions of parametric shapes (mm, radians), for shape recovery checks."""
+
+    @property
+    def is_mesh(self) -> bool:
+        return isinstance(self.solid, MeshSolid)
+
+    @property
+    def extents(self) -> np.ndarray:
+        """(3,) size along x, y, z, mm."""
+        return self.bounds[1] - self.bounds[0]
