@@ -39,7 +39,7 @@ def load_mesh(path: str | Path, *, units: str = "m", max_opening_mm: float = 110
     except Exception as error:  # trimesh raises many types for corrupt files
         raise InvalidMeshError(f"{path}: cannot read mesh ({error})") from error
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise InvalidMeshError(f"{path}: file holds no triangles")
+        raise InvalidMeshError(f"{path}: cannot read mesh (the file holds no triangles)")
     mesh.apply_scale(MESH_UNITS_TO_MM[units])
     check_mesh(mesh, name=str(path), max_opening_mm=max_opening_mm, units=units)
     return mesh

@@ -9,9 +9,10 @@ as seen in that plane; along the closing axis each grasp is centred on the box. 
 miss, or that the open gripper cannot fit around, are skipped when simulated.
 
 Calibration (section IV). Frontal touches: the sensor faces straight down onto the shape (whose
-top points up, +z), shifted by a random offset in the gel plane (uniform, up to
-``max_offset_fraction`` of the field of view each way), turned by a random angle about its
-normal, and pressed to a random depth in ``depth_range_mm``.
+top points up, +z), turned by a random angle about its normal, shifted so that the shape's axis
+crosses the gel at a random offset from the image centre (uniform, up to
+``max_offset_fraction`` of the field of view each way, in the sensor frame), and pressed to a
+random depth in ``depth_range_mm``.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ class TouchPlan:
     depth_mm: Float[Array, "N"]
     rotation_rad: Float[Array, "N"]
     offset_x_mm: Float[Array, "N"]
+    """Where the shape's axis crosses the gel, sensor-frame x, mm."""
     offset_y_mm: Float[Array, "N"]
 
     def __len__(self) -> int:
@@ -150,8 +152,11 @@ def calibration_plan(
     # Gel facing down (sensor z = world -z), turned about its normal.
     facing_down = jaxlie.SO3.from_x_radians(jnp.pi)
     R = jaxlie.SO3.from_z_radians(rotation) @ facing_down
+    # Place the sensor so that the shape's vertical axis crosses the gel at (offset_x, offset_y)
+    # in the sensor frame: p_sensor(axis) = R^T (0 - position) has x, y = offsets.
     top = float(obj.bounds[1, 2]) + protocol.clearance_mm
-    position = jnp.stack([offset_x, offset_y, jnp.full((count,), top)], axis=-1)
+    in_plane = -(R @ jnp.stack([offset_x, offset_y, jnp.zeros(count)], axis=-1))
+    position = in_plane.at[:, 2].set(top)
     return TouchPlan(
         T_world_sensor_start=jaxlie.SE3.from_rotation_and_translation(R, position),
         depth_mm=depth, rotation_rad=rotation, offset_x_mm=offset_x, offset_y_mm=offset_y,

@@ -1,0 +1,85 @@
+"""The command line, end to end on small inputs, and its error messages."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from tactojax.cli import main
+from tactojax.io import load_imprints, open_dataset
+
+SMALL = ["--scale", "0.25", "--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0", "90", "--no-progress"]
+
+
+def test_simulate_then_info_counts_per_object(tmp_path, capsys):
+    out = tmp_path / "data"
+    assert main(["simulate", "cuboid", "--out", str(out), *SMALL]) == 0
+    assert main(["simulate", "cylinder", "--out", str(out), *SMALL]) == 0
+    summary_path = tmp_path / "info.json"
+    assert main(["info", str(out), "--json", str(summary_path)]) == 0
+    summary = json.loads(summary_path.read_text())
+    dataset = open_dataset(out)
+    ids = dataset.read(["object_id"])["object_id"]
+    assert summary["count"] == len(dataset) == len(ids)
+    assert summary["groups"] == {"cuboid": int(np.sum(ids == "cuboid")), "cylinder": int(np.sum(ids == "cylinder"))}
+    printed = capsys.readouterr().out
+    assert "cuboid" in printed and "gelslim" in printed
+    imprints, object_ids = load_imprints(out)
+    assert imprints.image.shape == (len(dataset), 60, 80, 3)
+    assert float(imprints.image.max()) <= 1.0
+    # Cuboid at turn 0 is pinched across its 20 mm side, at turn 90 across its 80 mm length.
+    openings = np.asarray(imprints.opening)[object_ids == "cuboid"]
+    assert set(np.round(openings).astype(int)) == {19, 79}
+
+
+def test_appending_with_another_sensor_is_refused(tmp_path, capsys):
+    out = tmp_path / "data"
+    assert main(["simulate", "cuboid", "--out", str(out), *SMALL]) == 0
+    assert main(["simulate", "cuboid", "--out", str(out), *SMALL[:1], "0.5", *SMALL[2:]]) == 2
+    assert "metadata" in capsys.readouterr().err
+
+
+def _write_mesh(path, mesh):
+    mesh.export(path)
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    ("mesh_kind", "units", "message"),
+    [
+        ("open", "mm", "not watertight"),
+        ("huge", "mm", "far larger than a gripper"),
+        ("tiny", "mm", "mesh-units"),
+        ("corrupt", "mm", "cannot read mesh"),
+    ],
+)
+def test_bad_meshes_get_clear_errors(tmp_path, capsys, mesh_kind, units, message):
+    if mesh_kind == "open":
+        box = trimesh.creation.box((30.0, 20.0, 10.0))
+        path = _write_mesh(tmp_path / "open.stl", trimesh.Trimesh(box.vertices, box.faces[:-2]))
+    elif mesh_kind == "huge":
+        path = _write_mesh(tmp_path / "huge.stl", trimesh.creation.box((2000.0, 20.0, 20.0)))
+    elif mesh_kind == "tiny":
+        path = _write_mesh(tmp_path / "tiny.stl", trimesh.creation.box((0.2, 0.02, 0.05)))
+    else:
+        path = tmp_path / "corrupt.stl"
+        path.write_bytes(b"solid x\n facet normal 0 0 1\n outer loop\n vertex 1 2\n")
+        path = str(path)
+    code = main(["simulate", path, "--mesh-units", units, "--out", str(tmp_path / "out"), *SMALL])
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out" / "manifest.json").exists()
+
+
+def test_mesh_by_path_is_simulated(tmp_path):
+    path = _write_mesh(tmp_path / "block.stl", trimesh.creation.box((0.06, 0.03, 0.02)))  # metres
+    out = tmp_path / "block"
+    assert main(["simulate", path, "--mesh-units", "m", "--out", str(out), *SMALL]) == 0
+    ids = open_dataset(out).read(["object_id"])["object_id"]
+    assert len(ids) > 0 and set(ids) == {"block"}
+
+
+def test_unknown_object_is_a_clear_error(capsys, tmp_path):
+    assert main(["simulate", "teapot", "--out", str(tmp_path / "x")]) == 2
+    assert "neither a catalog object" in capsys.readouterr().err
