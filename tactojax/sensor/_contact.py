@@ -12,11 +12,15 @@ edge), and it bridges narrow cavities instead of filling them. We model the gel 
     h_gel = max(h_rigid, G_sigma * h_rigid),
 
 the rigid indentation lifted by its own Gaussian-smoothed version (sigma ~ a fraction of the
-gel thickness). Inside the contact patch, where the object pushes the gel, h_gel equals the
-rigid indentation (the object is rigid and cannot be penetrated); outside, and over cavities
-narrower than a few sigma, the gel takes the smooth envelope. The contact mask is where the
-object actually touches (h_rigid > 0). This is a geometric stand-in for an elastic half-space
-solution, documented as such; it keeps every output differentiable.
+gel thickness). The gel is never shallower than the rigid indentation (the object cannot be
+penetrated). Well inside the contact patch (more than about 2 sigma from its edge) h_gel equals
+the rigid indentation; outside it, and over cavities narrower than a few sigma, the gel takes
+the smooth envelope. In a band about 2 sigma wide just inside the patch edge the envelope is
+the deeper of the two, so there the membrane sags slightly below the object's surface (by up
+to ~0.1 mm for a 1 mm press on a 6 mm sphere), as a membrane stretched over an edge does.
+The contact mask is the geometric contact patch, where the rigid object reaches into the
+undeformed gel (h_rigid > 0), including that band. This is a geometric stand-in for an elastic
+half-space solution, documented as such; it keeps every output differentiable.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ class Contact:
     rigid_heightmap: Float[Array, "H W"]
     """Indentation a perfectly conforming gel would have (the object's shape), mm (>= 0)."""
     mask: Bool[Array, "H W"]
-    """Where the object touches the gel."""
+    """Geometric contact patch: where the object reaches into the undeformed gel (h_rigid > 0)."""
     travel: Float[Array, ""]
     """How far the jaw moved from its start along sensor +z, mm."""
     touched: Bool[Array, ""]
