@@ -48,11 +48,9 @@ def test_cylinder_grasp_opening_and_contact_lie_on_the_surface(small_spec):
 
 def test_compliant_wrist_centres_the_gripper_between_the_jaws(small_spec):
     box = get_object("cuboid")  # 80 x 20 x 25 mm, thinnest (20 mm) along y
-    grasps = top_down_grasps([0.0])
-    offset = jaxlie.SE3.from_translation(jnp.array([0.0, 0.0, 0.0]))
     # Commanded 4 mm off-centre along the closing axis: the recorded pose is re-centred.
-    shifted = grasps @ jaxlie.SE3.from_translation(jnp.array([0.0, 4.0, 0.0]))
-    result = simulate_grasps(jax.random.key(1), small_spec, box, offset, shifted)
+    shifted = top_down_grasps([0.0]) @ jaxlie.SE3.from_translation(jnp.array([0.0, 4.0, 0.0]))
+    result = simulate_grasps(jax.random.key(1), small_spec, box, jaxlie.SE3.identity(), shifted)
     assert bool(result.valid[0])
     np.testing.assert_allclose(result.imprint.opening[0], 20.0 - 1.0, atol=1e-3)
     centre = np.asarray(result.imprint.T_world_gripper.translation()[0])
