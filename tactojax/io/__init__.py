@@ -15,6 +15,16 @@ from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
 from tactojax.io._mesh import check_mesh as check_mesh
 from tactojax.io._mesh import load_mesh as load_mesh
 from tactojax.io._mesh import ycb_mesh_path as ycb_mesh_path
+from tactojax.io._presses import load_ball_presses as load_ball_presses
+from tactojax.io._shape import CorruptCheckpointError as CorruptCheckpointError
+from tactojax.io._shape import bundled_shape_models as bundled_shape_models
+from tactojax.io._shape import load_shape_data as load_shape_data
+from tactojax.io._shape import load_shape_model as load_shape_model
+from tactojax.io._shape import load_train_state as load_train_state
+from tactojax.io._shape import resolve_shape_model as resolve_shape_model
+from tactojax.io._shape import save_shape_model as save_shape_model
+from tactojax.io._shape import save_train_state as save_train_state
+from tactojax.io._shape import shape_model_metadata as shape_model_metadata
 from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
 from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
 from tactojax.io._taxim import TaximCalibration as TaximCalibration
@@ -37,6 +47,16 @@ __all__ = [
     "check_mesh",
     "load_mesh",
     "ycb_mesh_path",
+    "load_ball_presses",
+    "CorruptCheckpointError",
+    "bundled_shape_models",
+    "load_shape_data",
+    "load_shape_model",
+    "load_train_state",
+    "resolve_shape_model",
+    "save_shape_model",
+    "save_train_state",
+    "shape_model_metadata",
     "TAXIM_SENSORS",
     "MissingDataPackageError",
     "TaximCalibration",

@@ -1,0 +1,136 @@
+"""ShapeModel and ``predict``: one tactile image -> contact heightmap and mask (paper section IV)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
+
+from tactojax.shape._lookup import lookup_slope
+from tactojax.shape._models import USES_BACKGROUND, build_network
+from tactojax.shape._poisson import integrate_gradient, zero_background
+
+COLOR_CHANGE_GAIN = 8.0
+"""Colour changes against the background are a few hundredths; this gain brings the network's
+input to unit scale (weights are initialised for unit-variance inputs)."""
+
+LOOKUP = "lookup"
+"""Preset name of the classical colour -> slope lookup model (no network)."""
+
+
+@struct.dataclass
+class ShapeModel:
+    """A trained image -> heightmap model for one sensor: preset, weights and background frame.
+
+    ``params`` holds the flax weights of a network preset, or for ``lookup``
+    ``{"table": (B, B, B, 2), "color_range": (), "mask_threshold_mm": ()}``.
+    """
+
+    params: Any
+    """Network weights (a pytree)."""
+    background: Float[Array, "H W 3"]
+    """The sensor's image with nothing touching, RGB in [0, 1]."""
+    preset: str = struct.field(pytree_node=False)
+    """``paper``, ``fast``, ``tiny`` or ``lookup``."""
+    mm_per_px: float = struct.field(pytree_node=False)
+    """Pixel pitch of the sensor the model was trained for, mm."""
+    sensor: str = struct.field(pytree_node=False, default="")
+    """Name of that sensor (preset name, or a user's label)."""
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """(H, W) of the images the model takes."""
+        return tuple(self.background.shape[:2])
+
+
+def init_shape_model(
+    key: PRNGKeyArray,
+    preset: str,
+    background: Float[Array, "H W 3"],
+    mm_per_px: float,
+    *,
+    sensor: str = "",
+) -> ShapeModel:
+    """A network preset with freshly initialised weights (use ``train_shape_model`` to train)."""
+    network = build_network(preset, mm_per_px)
+    background = jnp.asarray(background, jnp.float32)
+    dummy = network_input(background, background, preset)
+    params = jax.jit(network.init)(key, dummy)["params"]  # one compilation, not one per layer
+    return ShapeModel(params=params, background=background, preset=preset, mm_per_px=mm_per_px,
+                      sensor=sensor)
+
+
+def network_input(
+    image: Float[Array, "H W 3"], background: Float[Array, "H W 3"], preset: str
+) -> Float[Array, "H W 5"]:
+    """The network's input: colour (raw, or the scaled change against the background) and the
+    pixel's x, y in [-1, 1]."""
+    height_px, width_px = image.shape[:2]
+    if USES_BACKGROUND[preset]:
+        color = COLOR_CHANGE_GAIN * (image - background)
+    else:
+        color = image
+    rows = jnp.linspace(-1.0, 1.0, height_px)
+    cols = jnp.linspace(-1.0, 1.0, width_px)
+    y, x = jnp.meshgrid(rows, cols, indexing="ij")
+    return jnp.concatenate([color, x[..., None], y[..., None]], axis=-1).astype(jnp.float32)
+
+
+def raw_prediction(
+    model: ShapeModel, image: Float[Array, "H W 3"], background: Float[Array, "H W 3"] | None = None
+) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
+    """Unclipped heightmap (mm) and contact logit, as training sees them.
+
+    ``background`` overrides the model's frame (e.g. one recaptured under new lighting).
+    """
+    background = model.background if background is None else background
+    if model.preset == LOOKUP:
+        slope = lookup_slope(model.params["table"], model.params["color_range"], image - background)
+        heightmap = zero_background(integrate_gradient(slope, model.mm_per_px))
+        return heightmap, (heightmap - model.params["mask_threshold_mm"]) * 100.0
+    network = build_network(model.preset, model.mm_per_px)
+    output = network.apply({"params": model.params}, network_input(image, background, model.preset))
+    return output[..., 0], output[..., 1]
+
+
+@jax.jit
+def predict(
+    model: ShapeModel, image: Float[Array, "H W 3"]
+) -> tuple[Float[Array, "H W"], Bool[Array, "H W"]]:
+    """Contact heightmap and mask from one tactile image (paper section IV).
+
+    Compiles once per model preset and image size; vmap it (or use :func:`predict_batch`) for
+    batches.
+
+    Args:
+        model: a trained :class:`ShapeModel` for this sensor.
+        image: (H, W, 3) RGB in [0, 1], the model's image size.
+
+    Returns:
+        (heightmap (H, W) indentation depth in mm, >= 0; mask (H, W) contact).
+    """
+    heightmap, logit = raw_prediction(model, image)
+    mask = logit > 0.0
+    return jnp.maximum(heightmap, 0.0), mask
+
+
+@jax.jit
+def predict_batch(
+    model: ShapeModel, images: Float[Array, "N H W 3"]
+) -> tuple[Float[Array, "N H W"], Bool[Array, "N H W"]]:
+    """:func:`predict` over a leading batch axis."""
+    return jax.vmap(predict, in_axes=(None, 0))(model, images)
+
+
+def check_image(model: ShapeModel, image) -> None:
+    """Raise a clear ``ValueError`` if ``image`` is not an (…, H, W, 3) image this model takes."""
+    shape = tuple(getattr(image, "shape", ()))
+    expected = (*model.image_shape, 3)
+    if len(shape) < 3 or shape[-3:] != expected:
+        raise ValueError(
+            f"image shape {shape} does not match the shape model's (..., {expected[0]}, "
+            f"{expected[1]}, 3) (sensor {model.sensor or 'unknown'}, {model.mm_per_px} mm/px)"
+        )
