@@ -165,6 +165,10 @@ def main() -> None:
     test_per_object = max(1, args.touches // 6)
     results: dict = {"machine": machine_info(), "settings": vars(args), "config": config.__dict__}
 
+    def save():  # after every section, so an interrupted run keeps what it measured
+        if args.json:
+            write_json(args.json, results)
+
     data = load_shape_data(simulate_calibration(work, "gelslim", args.scale, args.touches))
     train, test = split_held_out(data, test_per_object)
     shapes = train.objects
@@ -177,6 +181,7 @@ def main() -> None:
     print(f"\nfast reaches 0.06 mm after {results['time_to_0.06mm']['reached_at_s']} s of training")
     lookup_model, _ = fit("lookup", subset, None)
     full_models = {"fast": fast_model, "lookup": lookup_model}
+    save()
 
     if not args.skip_table:
         results["table1"] = table_one(train, test, ["fast", "lookup"], configs, args.pairs, full_models)
@@ -188,6 +193,7 @@ def main() -> None:
             rows.append([f"{method} all", *[table[s]["all"] for s in shapes]])
             rows.append([f"{method} removed", *[table[s]["removed"] for s in shapes]])
         print(format_table(["model / test set", *shapes], rows))
+        save()
 
         sizes = [args.pairs // 4, args.pairs // 2, args.pairs]
         results["learning_curve"] = learning_curve(train, test, ["fast", "lookup"], configs, sizes, full_models)
@@ -195,6 +201,7 @@ def main() -> None:
         print(format_table(["pairs", *results["learning_curve"]],
                            [[size, *[results["learning_curve"][m].get(size) for m in results["learning_curve"]]]
                             for size in sizes]))
+        save()
 
     results["robustness"] = {"fast": robustness_study(fast_model, test), "lookup": robustness_study(lookup_model, test)}
     if args.paper_steps:
@@ -207,6 +214,7 @@ def main() -> None:
     conditions = list(results["robustness"]["fast"])
     print(format_table(["model", *conditions],
                        [[m, *[r[c]["patch_rmse"] for c in conditions]] for m, r in results["robustness"].items()]))
+    save()
 
     if args.other_sensor:
         other = load_shape_data(simulate_calibration(work, args.other_sensor, args.other_scale, args.touches))

@@ -57,11 +57,11 @@ def run(args) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     data = load_shape_data(args.data)
+    unknown = sorted(set(args.exclude_object) - set(data.objects))
+    if unknown:
+        raise ValueError(f"--exclude-object {unknown}: not in the data ({data.objects})")
     train, test = split_held_out(data, args.test_per_object) if args.test_per_object else (data, None)
     if args.exclude_object:
-        unknown = sorted(set(args.exclude_object) - set(data.objects))
-        if unknown:
-            raise ValueError(f"--exclude-object {unknown}: not in the data ({data.objects})")
         train = train.take(~_isin(train.object_ids, args.exclude_object))
     if args.pairs:
         train = balanced_subset(train, args.pairs)
