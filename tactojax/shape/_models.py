@@ -8,7 +8,7 @@ mm and the contact-mask logit. Presets are ``functools.partial`` of the two fami
 * ``fast``: a per-pixel MLP on each pixel's 3x3 neighbourhood that predicts the surface
   slope from the colour change against the background frame and the pixel position, followed
   by a differentiable Poisson integration (:mod:`tactojax.shape._poisson`); contact where the
-  height exceeds a threshold. ~75x fewer multiply-adds per pixel than ``paper``
+  height exceeds a threshold. 84x fewer multiply-adds per pixel than ``paper``
   (``flops_per_pixel``).
 * ``tiny``: ``fast`` with 8 features, for tests.
 """
