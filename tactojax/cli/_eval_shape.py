@@ -27,11 +27,10 @@ def run(args) -> int:
     import numpy as np
 
     from tactojax.io import load_shape_data, resolve_shape_model
-    from tactojax.shape import check_image, evaluate_shape_model, robustness_study, split_held_out
+    from tactojax.shape import evaluate_shape_model, robustness_study, split_held_out
 
     model = resolve_shape_model(args.model)
     data = load_shape_data(args.data)
-    check_image(model, data.images)
     if args.held_out:
         _, data = split_held_out(data, args.held_out)
     errors = evaluate_shape_model(model, data, progress=True)

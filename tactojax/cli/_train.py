@@ -49,6 +49,8 @@ def _default_config():
 
 
 def run(args) -> int:
+    import numpy as np
+
     from tactojax.io import (load_shape_data, load_train_state, save_shape_model,
                              save_train_state)
     from tactojax.shape import (TrainConfig, balanced_subset, evaluate_shape_model,
@@ -62,7 +64,7 @@ def run(args) -> int:
         raise ValueError(f"--exclude-object {unknown}: not in the data ({data.objects})")
     train, test = split_held_out(data, args.test_per_object) if args.test_per_object else (data, None)
     if args.exclude_object:
-        train = train.take(~_isin(train.object_ids, args.exclude_object))
+        train = train.take(~np.isin(train.object_ids, args.exclude_object))
     if args.pairs:
         train = balanced_subset(train, args.pairs)
     print(f"training {args.preset} on {len(train)} pairs ({', '.join(train.objects)}), "
@@ -97,9 +99,3 @@ def run(args) -> int:
     if args.json:
         write_json(args.json, report)
     return 0
-
-
-def _isin(values, names):
-    import numpy as np
-
-    return np.isin(values, names)

@@ -496,11 +496,10 @@ def calibrate_from_presses(
     Presses are split by :func:`split_presses`; the ball radius is estimated from the
     training presses by :func:`estimate_ball_radius` when not given; :func:`fit_lookup_model`
     is fitted to :func:`ball_press_data` of the training presses with the captured
-    background. Its contact threshold is then re-picked by :func:`best_mask_threshold` on up
-    to ``threshold_presses`` training presses over the whole range of reconstructed depths
-    (a real gel sinks around the ball, so the disc edge sits well above zero height, beyond
-    the range ``fit_lookup_model`` searches). :func:`evaluate_ball_fit` reports on the
-    held-out presses.
+    background; its contact threshold is picked by :func:`fit_mask_threshold` on
+    ``threshold_presses`` training presses, over the whole range of reconstructed heights (a
+    real gel sinks around the ball, so the disc edge sits well above zero height).
+    :func:`evaluate_ball_fit` reports on the held-out presses.
 
     Args:
         presses: annotated presses (at least 2).
@@ -519,7 +518,7 @@ def calibrate_from_presses(
     Raises:
         BallRadiusNotIdentifiableError: no radius given and the presses cannot tell it.
     """
-    from tactojax.shape._lookup import fit_lookup_model
+    from tactojax.shape._lookup import fit_lookup_model, fit_mask_threshold
 
     train_ids, held_out_ids = split_presses(len(presses), held_out_fraction)
     train = presses.take(train_ids)
@@ -535,12 +534,9 @@ def calibrate_from_presses(
                 "and give its radius", estimate_table)
     radius = _check_ball_radius(presses, ball_radius_mm)
     train_data = ball_press_data(train, radius)
-    model = fit_lookup_model(train_data, background=presses.background, bins=bins)
-    picked = np.unique(np.linspace(0, len(train) - 1, min(threshold_presses, len(train))).round().astype(int))
-    heights, _ = _reconstruct(model, train.take(picked))
-    deepest = float(max(heights[index][mask].max() for index, mask in enumerate(train_data.masks[picked])))
-    threshold, ious = best_mask_threshold(heights, train_data.masks[picked], np.linspace(0.0, deepest, 121))
-    model = model.replace(params={**model.params, "mask_threshold_mm": np.float32(threshold)})
+    model = fit_lookup_model(train_data, background=presses.background, bins=bins, threshold_pairs=0)
+    model, train_mask_iou = fit_mask_threshold(model, train_data, max_pairs=threshold_presses)
+    threshold = float(model.params["mask_threshold_mm"])
     evaluation = evaluate_ball_fit(model, presses.take(held_out_ids), radius, press_ids=held_out_ids)
     report = {
         "ball_radius_mm": radius,
@@ -551,7 +547,7 @@ def calibrate_from_presses(
         "held_out_presses": held_out_ids.tolist(),
         "bins": int(bins),
         "mask_threshold_mm": threshold,
-        "train_mask_iou": float(ious.max()),
+        "train_mask_iou": train_mask_iou,
         "held_out": evaluation,
     }
     return model, report

@@ -86,6 +86,7 @@ def fit_lookup_model(
     background: np.ndarray | None = None,
     bins: int = 24,
     max_pixels: int = 2_000_000,
+    threshold_pairs: int = 200,
     seed: int = 0,
 ):
     """The classical model fitted to (image, heightmap, mask) pairs: table, range, mask threshold.
@@ -99,6 +100,8 @@ def fit_lookup_model(
         background: the no-contact frame, (H, W, 3) in [0, 1]; default estimated from ``data``.
         bins: table bins per colour channel.
         max_pixels: cap on the pixels used (sampled with ``seed``).
+        threshold_pairs: pairs reconstructed to pick the contact threshold
+            (:func:`fit_mask_threshold`); 0 leaves it at 0 for the caller to fit.
 
     Returns:
         A :class:`tactojax.shape.ShapeModel` with preset ``lookup``.
@@ -126,13 +129,21 @@ def fit_lookup_model(
               "mask_threshold_mm": np.float32(0.0)}
     model = ShapeModel(params=params, background=np.asarray(background, np.float32), preset=LOOKUP,
                        mm_per_px=data.mm_per_px, sensor=data.sensor)
-    return fit_mask_threshold(model, data, seed=seed)
+    if not threshold_pairs:
+        return model
+    return fit_mask_threshold(model, data, max_pairs=threshold_pairs, seed=seed)[0]
 
 
 def fit_mask_threshold(model, data, *, max_pairs: int = 200, seed: int = 0):
     """Set ``params["mask_threshold_mm"]`` to the height threshold that best reproduces the
     true contact masks of (up to ``max_pairs`` of) ``data`` (mean IoU), for models whose
-    contact is "reconstructed height above a threshold" (``lookup``, ``fast``, ``tiny``)."""
+    contact is "reconstructed height above a threshold" (``lookup``, ``fast``, ``tiny``).
+
+    Thresholds are searched from 0 to the 99.9th percentile of the reconstructed heights.
+
+    Returns:
+        (the model with its threshold set, the mean IoU it achieves on those pairs).
+    """
     import jax
 
     from tactojax.shape._calibrate import best_mask_threshold
@@ -142,7 +153,7 @@ def fit_mask_threshold(model, data, *, max_pairs: int = 200, seed: int = 0):
     heights = jax.jit(jax.vmap(lambda image: raw_prediction(model, image)[0]))(data.images_float(rows))
     heights = np.asarray(heights)
     thresholds = np.linspace(0.0, max(float(np.percentile(heights, 99.9)), 1e-3), 101)
-    threshold, _ = best_mask_threshold(heights, data.masks[rows], thresholds)
+    threshold, ious = best_mask_threshold(heights, data.masks[rows], thresholds)
     params = dict(model.params)
     params["mask_threshold_mm"] = np.float32(threshold)
-    return model.replace(params=params)
+    return model.replace(params=params), float(ious.max())

@@ -10,7 +10,7 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from tactojax.shape._lookup import lookup_slope
-from tactojax.shape._models import USES_BACKGROUND, build_network
+from tactojax.shape._models import MASK_SHARPNESS_MM, USES_BACKGROUND, build_network
 from tactojax.shape._poisson import integrate_gradient, zero_background
 
 COLOR_CHANGE_GAIN = 8.0
@@ -90,7 +90,7 @@ def raw_prediction(
     if model.preset == LOOKUP:
         slope = lookup_slope(model.params["table"], model.params["color_range"], image - background)
         heightmap = zero_background(integrate_gradient(slope, model.mm_per_px))
-        return heightmap, (heightmap - model.params["mask_threshold_mm"]) * 100.0
+        return heightmap, (heightmap - model.params["mask_threshold_mm"]) / MASK_SHARPNESS_MM
     network = build_network(model.preset, model.mm_per_px)
     output = network.apply({"params": model.params}, network_input(image, background, model.preset))
     return output[..., 0], output[..., 1]

@@ -278,5 +278,5 @@ def train_shape_model(
             on_checkpoint(state)
     bar.close()
     if has_slope_net(preset) and int(state.step) == total:
-        state = state.replace(model=fit_mask_threshold(state.model, data, seed=config.seed))
+        state = state.replace(model=fit_mask_threshold(state.model, data, seed=config.seed)[0])
     return state
