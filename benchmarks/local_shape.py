@@ -13,7 +13,9 @@ the last 100 of every shape held out for testing, as in the paper):
 4. Robustness: unseen lighting and extra noise (``tactojax.shape.robustness_study``), and the
    same training on another sensor preset (``--other-sensor``, the real GelSight optics).
 5. The ``paper`` preset (10 x 64 x 3x3) trained with ``--paper-steps`` on random crops, for the
-   accuracy comparison; expensive on CPU (about 3 s a step on 2 cores).
+   accuracy comparison; expensive on CPU (about 3 s a step on 2 cores). Or pass a checkpoint
+   trained apart (``--paper-model``, e.g. from ``tactojax train DATA --preset paper --crop-px 40
+   --pairs 2000``, which holds out the same last 100 touches of every shape).
 6. Speed: images/s of ``predict`` for every preset at the full sensor resolution, batch 1 and
    batch 16, compile time apart, and multiply-adds per pixel.
 
@@ -37,7 +39,7 @@ try:
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, time_call, write_json
 
-from tactojax.io import load_shape_data, simulate_to_dataset
+from tactojax.io import load_shape_data, load_shape_model, shape_model_metadata, simulate_to_dataset
 from tactojax.objects import CALIBRATION_SHAPES, get_object
 from tactojax.sensor import sensor_preset
 from tactojax.shape import (TrainConfig, balanced_subset, build_network, evaluate_shape_model,
@@ -152,6 +154,7 @@ def main() -> None:
     parser.add_argument("--other-sensor", default="gelsight", help="second sensor preset ('' to skip)")
     parser.add_argument("--other-scale", type=float, default=0.25)
     parser.add_argument("--paper-steps", type=int, default=0, help="train the paper preset (slow on CPU)")
+    parser.add_argument("--paper-model", metavar="PATH", help="evaluate this trained paper checkpoint instead")
     parser.add_argument("--skip-table", action="store_true", help="skip Table I and the learning curve")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--quick", action="store_true", help="smoke run: 60 touches, short training")
@@ -204,12 +207,23 @@ def main() -> None:
         save()
 
     results["robustness"] = {"fast": robustness_study(fast_model, test), "lookup": robustness_study(lookup_model, test)}
-    if args.paper_steps:
-        paper_config = TrainConfig(steps=args.paper_steps, crop_px=40, batch_size=8)
-        paper_model, seconds = fit("paper", subset, paper_config)
-        results["paper_preset"] = {"steps": args.paper_steps, "train_s": seconds, "crop_px": 40,
+    if args.paper_steps or args.paper_model:
+        if args.paper_model:
+            paper_model = load_shape_model(args.paper_model)
+            metadata = shape_model_metadata(args.paper_model)
+            training = {"checkpoint": args.paper_model, "steps": metadata["config"]["steps"],
+                        "train_s": metadata.get("train_seconds"), "crop_px": metadata["config"]["crop_px"]}
+        else:
+            paper_config = TrainConfig(steps=args.paper_steps, crop_px=40, batch_size=8)
+            paper_model, seconds = fit("paper", subset, paper_config)
+            training = {"steps": args.paper_steps, "train_s": seconds, "crop_px": 40}
+        results["paper_preset"] = {**training, "per_shape": patch_rmse(paper_model, test),
                                    "robustness": robustness_study(paper_model, test)}
         results["robustness"]["paper"] = results["paper_preset"]["robustness"]
+        print("\npaper preset, trained on all shapes: contact-patch RMSE (mm)")
+        print(format_table(["model", *shapes, "all"],
+                           [["paper", *[results["paper_preset"]["per_shape"][s] for s in [*shapes, "all"]]],
+                            ["fast", *[patch_rmse(fast_model, test)[s] for s in [*shapes, "all"]]]]))
     print("\nRobustness: contact-patch RMSE (mm) on all test pairs, conditions never seen in training")
     conditions = list(results["robustness"]["fast"])
     print(format_table(["model", *conditions],

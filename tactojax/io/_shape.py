@@ -1,9 +1,9 @@
 """Shape models on disk: training pairs from datasets, model checkpoints, resumable train states.
 
 Checkpoint format (``.msgpack``, no pickle, written atomically): a msgpack map
-``{"format": "tactojax-shape-model", "version": 1, "preset", "sensor", "mm_per_px",
-"background": (H, W, 3) float32, "params": nested map of float32 arrays, "metadata": JSON
-string}``, arrays encoded by ``flax.serialization``. A training state adds ``"opt_state"``,
+``{"format": "tactojax-shape-model", "version": 2, "preset", "sensor", "mm_per_px",
+"color_gain", "background": (H, W, 3) float32, "params": nested map of float32 arrays,
+"metadata": JSON string}``. Version 1 had no ``color_gain``; its models used 8., arrays encoded by ``flax.serialization``. A training state adds ``"opt_state"``,
 ``"step"`` and ``"history"`` under ``"format": "tactojax-shape-train-state"``.
 """
 
@@ -23,7 +23,10 @@ from tactojax.shape._models import build_network
 
 MODEL_FORMAT = "tactojax-shape-model"
 STATE_FORMAT = "tactojax-shape-train-state"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
+VERSION_1_COLOR_GAIN = 8.0
+"""The colour gain every version-1 checkpoint was trained with."""
 
 
 class CorruptCheckpointError(ValueError):
@@ -73,6 +76,7 @@ def load_shape_data(paths, *, objects: list[str] | None = None) -> ShapeData:
 def _model_fields(model: ShapeModel) -> dict:
     return {
         "preset": model.preset, "sensor": model.sensor, "mm_per_px": float(model.mm_per_px),
+        "color_gain": float(model.color_gain),
         "background": np.asarray(model.background, np.float32),
         "params": serialization.to_state_dict(jax.device_get(model.params)),
     }
@@ -97,7 +101,7 @@ def _read(path, expected_format: str) -> dict:
         raise CorruptCheckpointError(f"{path} is not a readable checkpoint ({error})") from None
     if not isinstance(payload, dict) or payload.get("format") != expected_format:
         raise CorruptCheckpointError(f"{path} is not a {expected_format} file")
-    if payload.get("version") != VERSION:
+    if payload.get("version") not in READABLE_VERSIONS:
         raise CorruptCheckpointError(f"{path}: unsupported version {payload.get('version')}")
     return payload
 
@@ -105,6 +109,8 @@ def _read(path, expected_format: str) -> dict:
 def _model_from_payload(payload: dict, path) -> ShapeModel:
     try:
         preset = str(payload["preset"])
+        version_1 = payload["version"] == 1
+        color_gain = VERSION_1_COLOR_GAIN if version_1 else float(payload["color_gain"])
         background = np.asarray(payload["background"], np.float32)
         params = payload["params"]
         if preset != "lookup":  # check the weights against the architecture
@@ -120,7 +126,8 @@ def _model_from_payload(payload: dict, path) -> ShapeModel:
     except (KeyError, ValueError, TypeError) as error:
         raise CorruptCheckpointError(f"{path}: malformed shape model ({error})") from None
     return ShapeModel(params=params, background=background, preset=preset,
-                      mm_per_px=float(payload["mm_per_px"]), sensor=str(payload["sensor"]))
+                      mm_per_px=float(payload["mm_per_px"]), sensor=str(payload["sensor"]),
+                      color_gain=color_gain)
 
 
 def load_shape_model(path) -> ShapeModel:

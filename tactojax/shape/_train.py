@@ -24,7 +24,13 @@ from tactojax.sensor import augment_colors
 from tactojax.shape._data import ShapeData, estimate_background
 from tactojax.shape._lookup import fit_mask_threshold
 from tactojax.shape._models import USES_BACKGROUND, SlopePoissonNet, build_network, pixel_patches
-from tactojax.shape._predict import ShapeModel, init_shape_model, network_input, raw_prediction
+from tactojax.shape._predict import (
+    DEFAULT_COLOR_GAIN,
+    ShapeModel,
+    init_shape_model,
+    network_input,
+    raw_prediction,
+)
 
 HEIGHT_UNIT_MM = 0.1
 """Heightmap errors are measured in this unit inside the loss, to balance it with the BCE."""
@@ -52,6 +58,8 @@ class TrainConfig:
     augment: bool = True
     seed: int = 0
     checkpoint_every: int = 250
+    color_gain: float = DEFAULT_COLOR_GAIN
+    """Factor on the colour change in the network input (``fast``/``tiny``; stored in the model)."""
 
     def total_steps(self, preset: str) -> int:
         """Pixel steps (slope networks only) plus whole-image steps."""
@@ -101,7 +109,7 @@ def init_train_state(
     if background is None:
         background = estimate_background(data)
     model = init_shape_model(jax.random.key(config.seed), preset, background, data.mm_per_px,
-                             sensor=data.sensor)
+                             sensor=data.sensor, color_gain=config.color_gain)
     pixels = config.total_steps(preset) > config.steps
     opt_state = make_optimizer(config, preset, pixels=pixels).init(model.params)
     return TrainState(model=model, opt_state=opt_state, step=0,
@@ -130,7 +138,8 @@ def pixel_loss(
     """(slope MSE, slope RMSE) at pixels sampled half from the contact patch, half anywhere."""
     augment_key, sample_key = jax.random.split(key)
     image, background = _augmented(model, augment_key, image, config)
-    patches = pixel_patches(network_input(image, background, model.preset)).reshape(-1, 45)
+    inputs = network_input(image, background, model.preset, model.color_gain)
+    patches = pixel_patches(inputs).reshape(-1, 45)
     weights = 0.5 * mask.reshape(-1) / jnp.maximum(jnp.sum(mask), 1.0) + 0.5 / mask.size
     rows = jax.random.choice(sample_key, mask.size, (config.pixels_per_image,), p=weights)
     true_slope = heightmap_gradient(heightmap, model.mm_per_px).reshape(-1, 2)[rows]
@@ -159,8 +168,8 @@ def pair_loss(
     image, background = _augmented(model, augment_key, image, config)
     if config.crop_px and not has_slope_net(model.preset):
         network = build_network(model.preset, model.mm_per_px)
-        inputs, heightmap, mask = _random_crop(
-            crop_key, config.crop_px, network_input(image, background, model.preset), heightmap, mask)
+        inputs = network_input(image, background, model.preset, model.color_gain)
+        inputs, heightmap, mask = _random_crop(crop_key, config.crop_px, inputs, heightmap, mask)
         output = network.apply({"params": model.params}, inputs)
         margin = getattr(network, "layers", 0)
         inner = (slice(margin, config.crop_px - margin),) * 2

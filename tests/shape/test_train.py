@@ -3,6 +3,7 @@
 import jax
 import numpy as np
 import pytest
+from flax import serialization
 
 from tactojax.io import CorruptCheckpointError, load_shape_model, load_train_state, save_shape_model, save_train_state
 from tactojax.shape import TrainConfig, evaluate_shape_model, predict_batch, split_held_out, train_shape_model
@@ -50,9 +51,16 @@ def test_checkpoint_round_trip_and_corruption(trained, tmp_path):
     path = save_shape_model(tmp_path / "model.msgpack", state.model, metadata={"note": "test"})
     loaded = load_shape_model(path)
     assert loaded.preset == "tiny" and loaded.mm_per_px == state.model.mm_per_px
+    assert loaded.color_gain == state.model.color_gain == TrainConfig().color_gain
     images = test.images_float(slice(0, 2))
     for a, b in zip(predict_batch(state.model, images), predict_batch(loaded, images)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # Version-1 checkpoints (no stored gain) were all trained with gain 8.
+    payload = serialization.msgpack_restore(path.read_bytes())
+    payload["version"] = 1
+    del payload["color_gain"]
+    (tmp_path / "v1.msgpack").write_bytes(serialization.msgpack_serialize(payload))
+    assert load_shape_model(tmp_path / "v1.msgpack").color_gain == 8.0
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(CorruptCheckpointError):
         load_shape_model(path)
