@@ -33,3 +33,40 @@ def shape_data(calibration_dataset):
     from tactojax.io import load_shape_data
 
     return load_shape_data(calibration_dataset)
+
+
+@pytest.fixture(scope="session")
+def lookup_model(shape_data):
+    """The classical lookup shape model fitted on the calibration dataset (all but 8 per shape)."""
+    from tactojax.shape import fit_lookup_model, split_held_out
+
+    train, _ = split_held_out(shape_data, 8)
+    return fit_lookup_model(train, bins=16)
+
+
+@pytest.fixture(scope="session")
+def mapping_dataset(tmp_path_factory, small_spec):
+    """A small mapping-protocol dataset of the Table II cylinder: 20 mm grid, yaw 0, all 4 turns."""
+    import jax
+
+    from tactojax.io import simulate_to_dataset
+    from tactojax.objects import get_object
+    from tactojax.simulate import MappingProtocol
+
+    path = tmp_path_factory.mktemp("data") / "mapping"
+    simulate_to_dataset(path, jax.random.key(0), small_spec, get_object("cylinder"),
+                        MappingProtocol(grid_mm=20.0, yaws_deg=(0.0,)),
+                        progress=False)
+    return path
+
+
+@pytest.fixture(scope="session")
+def cylinder_map(mapping_dataset, lookup_model):
+    """The cylinder's tactile map built with the lookup model (predicted heightmaps)."""
+    from tactojax.io import read_grasps
+    from tactojax.mapping import build_tactile_map
+
+    grasps = read_grasps(mapping_dataset)
+    return build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
+                             grasps["object_id"], T_world_object=grasps["T_world_object"],
+                             points_per_imprint=256, batch_size=16, progress=False)

@@ -10,6 +10,12 @@ from tactojax.io._dataset import open_dataset as open_dataset
 from tactojax.io._imprints import dataset_metadata as dataset_metadata
 from tactojax.io._imprints import load_imprints as load_imprints
 from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
+from tactojax.io._map import CorruptMapError as CorruptMapError
+from tactojax.io._map import export_ply as export_ply
+from tactojax.io._map import load_tactile_map as load_tactile_map
+from tactojax.io._map import read_grasps as read_grasps
+from tactojax.io._map import save_tactile_map as save_tactile_map
+from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
 from tactojax.io._mesh import InvalidMeshError as InvalidMeshError
 from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
 from tactojax.io._mesh import check_mesh as check_mesh
@@ -42,6 +48,12 @@ __all__ = [
     "load_imprints",
     "open_dataset",
     "simulate_to_dataset",
+    "CorruptMapError",
+    "export_ply",
+    "load_tactile_map",
+    "read_grasps",
+    "save_tactile_map",
+    "tactile_map_metadata",
     "InvalidMeshError",
     "MESH_UNITS_TO_MM",
     "check_mesh",

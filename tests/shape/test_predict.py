@@ -3,13 +3,7 @@
 import numpy as np
 import pytest
 
-from tactojax.shape import check_image, evaluate_shape_model, fit_lookup_model, predict, predict_batch, split_held_out
-
-
-@pytest.fixture(scope="module")
-def lookup_model(shape_data):
-    train, _ = split_held_out(shape_data, 8)
-    return fit_lookup_model(train, bins=16)
+from tactojax.shape import check_image, evaluate_shape_model, predict, predict_batch, split_held_out
 
 
 def test_lookup_baseline_reconstructs_held_out_touches(shape_data, lookup_model):

@@ -1,0 +1,180 @@
+"""Global tactile maps (paper section V): Table II shape recovery, map quality, grid, noise.
+
+What is measured, on the simulated Table II shapes (gelslim at half resolution, the mapping
+protocol: grasps on a grid in the plane of the gripper, yaws 0 / +-20 deg, the object turned
+0 / 90 / 180 / 270 deg), with maps built from heightmaps *predicted* by the shape model:
+
+1. Table II: every shape's parameters fitted to its map (10 mm grid), estimate, true value and
+   relative error, beside the paper's (every parameter within 5.5 %; our target 1 %).
+2. Map quality: distance of the map's points to the true surface (mm), and how it and the fits
+   change with the grid spacing (5 / 10 / 20 mm).
+3. Kinematic noise: the 10 mm maps rebuilt with the recorded gripper poses and openings
+   perturbed (``tactojax.mapping.NOISE_LEVELS``: low, realistic, high), fits and quality again.
+
+Run from the repository root (data is simulated into --work once and reused):
+
+    python benchmarks/mapping.py --json results/mapping.json --figures results/maps
+    python benchmarks/mapping.py --quick          # smoke run: 20 mm grid, two shapes
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+try:
+    from benchmarks._common import format_table, machine_info, write_json
+except ImportError:  # run as a script: benchmarks/ itself is on sys.path
+    from _common import format_table, machine_info, write_json
+
+from tactojax.io import read_grasps, resolve_shape_model, simulate_to_dataset
+from tactojax.mapping import (NOISE_LEVELS, build_tactile_map, fit_tactile_map, perturb_kinematics,
+                              shape_fit_errors, stitched_point_cloud, surface_distance, true_shape_parameters)
+from tactojax.objects import TABLE2_SHAPES, get_object
+from tactojax.sensor import sensor_preset
+from tactojax.simulate import MappingProtocol
+
+SHAPE_KIND = {"cylinder": "cylinder", "semicone": "semicone", "double_cylinder": "double-cylinder",
+              "cuboid": "cuboid", "semipyramid": "semipyramid"}
+PAPER_TABLE2 = {  # (shape, parameter): (paper's estimate, paper's relative error %)
+    ("cylinder", "radius_mm"): (24.8, 2.9),
+    ("semicone", "base_radius_mm"): (19.8, 2.2), ("semicone", "slope_rad"): (np.deg2rad(7.5), 0.1),
+    ("double_cylinder", "big_radius_mm"): (15.3, 4.4), ("double_cylinder", "small_radius_mm"): (10.4, 5.5),
+    ("double_cylinder", "joint_mm"): (61.9, 3.2),
+    ("cuboid", "side_1_mm"): (26.0, 4.0), ("cuboid", "side_2_mm"): (20.9, 4.5),
+    ("semipyramid", "base_side_mm"): (19.7, 1.5), ("semipyramid", "slope_rad"): (np.deg2rad(7.2), 4.0),
+}
+
+
+def simulate_mapping(work: Path, name: str, grid_mm: float, scale: float) -> Path:
+    """The mapping protocol on one object, simulated once into ``work``."""
+    path = work / f"mapping-{name}-grid{grid_mm:g}-gelslim{scale:g}"
+    if not (path / "manifest.json").exists():
+        simulate_to_dataset(path, jax.random.key(0), sensor_preset("gelslim", scale=scale), get_object(name),
+                            MappingProtocol(grid_mm=grid_mm))
+    return path
+
+
+def map_and_fit(model, path: Path, name: str, *, noise: str = "none", seed: int = 0):
+    """Build the map (optionally with kinematic noise), fit the shape, measure the map."""
+    grasps = read_grasps(path)
+    T_world_gripper, openings = grasps["T_world_gripper"], grasps["openings"]
+    if noise != "none":
+        T_world_gripper, openings = perturb_kinematics(jax.random.key(seed), T_world_gripper, openings,
+                                                       NOISE_LEVELS[noise])
+    start = time.perf_counter()
+    tactile_map = build_tactile_map(model, grasps["images"], T_world_gripper, openings, name,
+                                    T_world_object=grasps["T_world_object"], progress=False)
+    build_s = time.perf_counter() - start
+    start = time.perf_counter()
+    fit = fit_tactile_map(tactile_map, SHAPE_KIND[name])
+    fit_s = time.perf_counter() - start
+    obj = get_object(name)
+    points, _ = stitched_point_cloud(tactile_map)
+    errors = shape_fit_errors(fit, true_shape_parameters(obj, SHAPE_KIND[name]))
+    result = {
+        "imprints": len(tactile_map), "with_contact": int(tactile_map.imprint_valid.sum()),
+        "points": int(len(points)), "build_s": build_s, "fit_s": fit_s,
+        "converged": bool(fit.converged), "fit_rms_residual_mm": float(fit.rms_residual_mm),
+        "parameters": errors, "max_relative_error": max(abs(e["relative_error"]) for e in errors.values()),
+        "surface_distance_mm": surface_distance(obj, points),
+    }
+    return tactile_map, result
+
+
+def _percent(x: float) -> str:
+    return f"{100 * x:.2f} %"
+
+
+def _value(name: str, x: float) -> str:
+    return f"{np.rad2deg(x):.2f} deg" if name.endswith("_rad") else f"{x:.2f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--work", default="benchmark-data/mapping", help="simulated data cache")
+    parser.add_argument("--model", default="bundled:fast-gelslim-0.5", help="shape model")
+    parser.add_argument("--scale", type=float, default=0.5, help="gelslim resolution factor (the model's)")
+    parser.add_argument("--grids", default="5,10,20", help="grid spacings for the map-quality study, mm")
+    parser.add_argument("--noise", default="low,realistic,high", help="kinematic noise levels ('' to skip)")
+    parser.add_argument("--shapes", default=",".join(TABLE2_SHAPES))
+    parser.add_argument("--figures", metavar="DIR", help="save a figure of every 10 mm map here")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 20 mm grid, two shapes, one noise level")
+    parser.add_argument("--json", metavar="PATH")
+    args = parser.parse_args()
+    shapes = args.shapes.split(",") if not args.quick else ["cylinder", "cuboid"]
+    grids = [float(g) for g in args.grids.split(",")] if not args.quick else [20.0]
+    table_grid = 10.0 if 10.0 in grids else grids[0]
+    noise_levels = [n for n in args.noise.split(",") if n] if not args.quick else ["realistic"]
+    work = Path(args.work)
+    model = resolve_shape_model(args.model)
+    results: dict = {"machine": machine_info(), "settings": vars(args), "grids": {}, "noise": {}}
+
+    def save():
+        if args.json:
+            write_json(args.json, results)
+
+    for grid in grids:
+        results["grids"][grid] = {}
+        for name in shapes:
+            tactile_map, result = map_and_fit(model, simulate_mapping(work, name, grid, args.scale), name)
+            results["grids"][grid][name] = result
+            print(f"grid {grid:g} mm, {name}: {result['with_contact']} imprints, max error "
+                  f"{_percent(result['max_relative_error'])}, map points "
+                  f"{result['surface_distance_mm']['mean']:.3f} mm from the surface", flush=True)
+            if args.figures and grid == table_grid:
+                from tactojax.viz import tactile_map_figure
+
+                points, _ = stitched_point_cloud(tactile_map)
+                tactile_map_figure(points, Path(args.figures) / f"{name}.png",
+                                   title=f"{name}: {result['with_contact']} imprints, grid {grid:g} mm")
+            save()
+
+    rows = []
+    for name in shapes:
+        for parameter, error in results["grids"][table_grid][name]["parameters"].items():
+            paper = PAPER_TABLE2.get((name, parameter), (float("nan"), float("nan")))
+            rows.append([name, parameter, _value(parameter, error["true"]), _value(parameter, error["estimate"]),
+                         _percent(abs(error["relative_error"])), _value(parameter, paper[0]), f"{paper[1]} %"])
+    print(f"\nTable II: parameters fitted to the tactile maps ({table_grid:g} mm grid); paper: every "
+          "parameter within 5.5 %")
+    print(format_table(["shape", "parameter", "true", "estimate", "error", "paper estimate", "paper error"], rows))
+
+    print("\nMap quality against the grid spacing: mean distance of map points to the true surface "
+          "(mm) / worst parameter error")
+    print(format_table(["shape", *[f"grid {g:g} mm" for g in grids]],
+                       [[name, *[f"{results['grids'][g][name]['surface_distance_mm']['mean']:.3f} / "
+                                 f"{_percent(results['grids'][g][name]['max_relative_error'])}" for g in grids]]
+                        for name in shapes]))
+    save()
+
+    for level in noise_levels:
+        results["noise"][level] = {"model": dataclasses.asdict(NOISE_LEVELS[level])}
+        for name in shapes:
+            _, result = map_and_fit(model, simulate_mapping(work, name, table_grid, args.scale), name, noise=level)
+            results["noise"][level][name] = result
+        save()
+    if noise_levels:
+        clean = results["grids"][table_grid]
+        levels = ["none", *noise_levels]
+        print(f"\nKinematic noise ({table_grid:g} mm grid): worst parameter error / mean distance to the surface (mm)")
+        for level in noise_levels:
+            noise = NOISE_LEVELS[level]
+            print(f"  {level}: gripper position sigma {noise.translation_mm} mm, orientation sigma "
+                  f"{noise.rotation_deg} deg, opening sigma {noise.opening_mm} mm per grasp")
+        print(format_table(["shape", *levels],
+                           [[name, *[f"{_percent((clean if lv == 'none' else results['noise'][lv])[name]['max_relative_error'])}"
+                                     f" / {(clean if lv == 'none' else results['noise'][lv])[name]['surface_distance_mm']['mean']:.3f}"
+                                     for lv in levels]] for name in shapes]))
+    save()
+    if args.json:
+        print(f"\nwrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,130 @@
+"""Build a TactileMap: predict every imprint's heightmap, sample its contact points, place it."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
+from tqdm.auto import tqdm
+
+from tactojax.geometry import heightmap_normals, heightmap_to_points, sensor_pose
+from tactojax.mapping._map import TactileMap
+from tactojax.shape import ShapeModel, check_image, predict_batch
+
+DEFAULT_POINTS_PER_IMPRINT = 1024
+"""Contact points kept per imprint (about a fifth of a typical half-resolution patch)."""
+
+
+def sample_contact_points(
+    key: PRNGKeyArray,
+    heightmap: Float[Array, "H W"],
+    mask: Bool[Array, "H W"],
+    mm_per_px: float,
+    count: int,
+) -> tuple[Float[Array, "P 3"], Float[Array, "P 3"], Bool[Array, "P"]]:
+    """``count`` contact points drawn uniformly without replacement from the mask.
+
+    Args:
+        key: PRNG key.
+        heightmap: (H, W) indentation depth, mm.
+        mask: (H, W) contact mask.
+        mm_per_px: pixel pitch, mm.
+        count: P, the fixed number of points returned.
+
+    Returns:
+        points (P, 3) and unit normals (P, 3) in the sensor frame, mm, and valid (P,): False
+        for the padding when the mask has fewer than P pixels.
+    """
+    flat_mask = mask.reshape(-1)
+    # Random scores, contact pixels first: the top P are a uniform sample of the patch.
+    scores = jax.random.uniform(key, flat_mask.shape) + flat_mask.astype(jnp.float32)
+    _, index = jax.lax.top_k(scores, count)
+    points = heightmap_to_points(heightmap, mm_per_px).reshape(-1, 3)[index]
+    normals = heightmap_normals(heightmap, mm_per_px).reshape(-1, 3)[index]
+    return points, normals, flat_mask[index]
+
+
+@functools.partial(jax.jit, static_argnames=("count",))
+def _predict_and_sample(model: ShapeModel, keys, images, count: int):
+    heightmaps, masks = predict_batch(model, images)
+    sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
+    points, normals, valid = sample(keys, heightmaps, masks, model.mm_per_px, count)
+    return heightmaps, masks, points, normals, valid
+
+
+def build_tactile_map(
+    model: ShapeModel,
+    images: np.ndarray,
+    T_world_gripper: jaxlie.SE3,
+    openings: Float[Array, "K"],
+    object_id: str,
+    *,
+    T_world_object: jaxlie.SE3 | None = None,
+    points_per_imprint: int = DEFAULT_POINTS_PER_IMPRINT,
+    batch_size: int = 32,
+    key: PRNGKeyArray | None = None,
+    progress: bool = True,
+) -> TactileMap:
+    """Stitch imprints into the object's tactile map (paper section V).
+
+    Every heightmap is *predicted* from its image by ``model`` (never taken from a
+    simulator's ground truth) and every imprint is placed by the gripper kinematics.
+
+    Args:
+        model: a trained shape model for the sensor that took the images.
+        images: (K, H, W, 3) tactile images, uint8 or float in [0, 1].
+        T_world_gripper: (K,) gripper poses at the imprints, mm.
+        openings: (K,) jaw openings, mm.
+        object_id: the object's name.
+        T_world_object: (K,) object poses (the mapping protocol turns the object); default
+            identity, i.e. the map frame is the world frame.
+        points_per_imprint: P, contact points sampled per imprint.
+        batch_size: images per prediction batch (the last batch is padded, so one compile).
+        key: PRNG key for the point sampling (default ``jax.random.key(0)``).
+        progress: show a progress bar.
+
+    Returns:
+        A :class:`TactileMap` of K imprints; imprints whose predicted mask is empty are kept
+        with ``imprint_valid`` False.
+    """
+    images = np.asarray(images)
+    check_image(model, images)
+    if images.ndim != 4 or len(images) == 0:
+        raise ValueError(f"images must be a non-empty (K, H, W, 3) stack, got shape {images.shape}")
+    count = len(images)
+    uint8 = images if images.dtype == np.uint8 else np.round(np.clip(images, 0, 1) * 255).astype(np.uint8)
+    key = jax.random.key(0) if key is None else key
+    parts = []
+    bar = tqdm(total=count, desc=f"map {object_id}", unit="imprint", disable=not progress)
+    for start in range(0, count, batch_size):
+        index = np.minimum(np.arange(start, start + batch_size), count - 1)
+        keys = jax.random.split(jax.random.fold_in(key, start), batch_size)
+        batch = jnp.asarray(uint8[index], jnp.float32) / 255.0
+        outputs = _predict_and_sample(model, keys, batch, points_per_imprint)
+        keep = min(batch_size, count - start)
+        parts.append([np.asarray(x)[:keep] for x in outputs])
+        bar.update(keep)
+    bar.close()
+    heightmaps, masks, points, normals, valid = (np.concatenate(column) for column in zip(*parts))
+    T_object_sensor = sensor_pose(T_world_gripper, jnp.asarray(openings, jnp.float32))
+    if T_world_object is not None:
+        T_object_sensor = T_world_object.inverse() @ T_object_sensor
+    return TactileMap(
+        images=jnp.asarray(uint8),
+        heightmaps=jnp.asarray(heightmaps),
+        masks=jnp.asarray(masks),
+        points=jnp.asarray(points),
+        normals=jnp.asarray(normals),
+        valid=jnp.asarray(valid),
+        T_object_sensor=T_object_sensor,
+        openings=jnp.asarray(openings, jnp.float32),
+        features=jnp.zeros((count, 0), jnp.float32),
+        imprint_valid=jnp.asarray(valid.any(axis=1)),
+        object_id=object_id,
+        mm_per_px=float(model.mm_per_px),
+        sensor=model.sensor,
+    )

@@ -1,0 +1,84 @@
+"""TactileMap: the imprints of one object, placed in the object frame (paper section V)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+from flax import struct
+from jaxtyping import Array, Bool, Float, UInt8
+
+
+@struct.dataclass
+class TactileMap:
+    """K imprints of one object, each with its predicted heightmap and contact points.
+
+    The map frame is the *object* frame: every imprint is placed by the gripper kinematics,
+    ``T_object_sensor = T_world_object^-1 @ sensor_pose(T_world_gripper, opening)``. For an
+    object fixed in the world (a real recording) the object frame is the world frame; the
+    mapping protocol turns the object, so it is not.
+
+    Shapes are fixed (K imprints, P points each, padding masked by ``imprint_valid`` and
+    ``valid``) so that everything that reads a map jits once per map size.
+    """
+
+    images: UInt8[Array, "K H W 3"]
+    """Tactile images, RGB uint8 (what localization features are computed from)."""
+    heightmaps: Float[Array, "K H W"]
+    """Heightmaps *predicted* by the shape model from the images, mm (>= 0)."""
+    masks: Bool[Array, "K H W"]
+    """Predicted contact masks."""
+    points: Float[Array, "K P 3"]
+    """P contact points per imprint sampled from the predicted mask, sensor frame, mm."""
+    normals: Float[Array, "K P 3"]
+    """Unit surface normals at ``points`` (pointing out of the object), sensor frame."""
+    valid: Bool[Array, "K P"]
+    """Which of the P points are real (an imprint with fewer contact pixels pads)."""
+    T_object_sensor: jaxlie.SE3
+    """(K,) sensor pose of every imprint in the map (object) frame, mm."""
+    openings: Float[Array, "K"]
+    """Gripper opening of every imprint, mm (CTI retrieval compares openings)."""
+    features: Float[Array, "K F"]
+    """Feature vector of every imprint for retrieval (F = 0 until an encoder fills it)."""
+    imprint_valid: Bool[Array, "K"]
+    """Which imprints are real (False: padding, and imprints with no contact at all)."""
+    object_id: str = struct.field(pytree_node=False)
+    """The mapped object's name."""
+    mm_per_px: float = struct.field(pytree_node=False)
+    """Pixel pitch of the images and heightmaps, mm."""
+    sensor: str = struct.field(pytree_node=False, default="")
+    """Name of the sensor that recorded the imprints."""
+
+    def __len__(self) -> int:
+        return int(self.openings.shape[0])
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """(H, W) of the stored images and heightmaps."""
+        return tuple(self.heightmaps.shape[1:3])
+
+    @property
+    def points_object(self) -> Float[Array, "K P 3"]:
+        """Contact points in the map (object) frame, mm."""
+        return jax.vmap(lambda T, p: T @ p)(self.T_object_sensor, self.points)
+
+    @property
+    def normals_object(self) -> Float[Array, "K P 3"]:
+        """Unit normals in the map (object) frame."""
+        return jax.vmap(lambda T, n: T.rotation() @ n)(self.T_object_sensor, self.normals)
+
+    @property
+    def point_valid(self) -> Bool[Array, "K P"]:
+        """``valid`` restricted to real imprints."""
+        return self.valid & self.imprint_valid[:, None]
+
+    def with_features(self, features: Float[Array, "K F"]) -> TactileMap:
+        """The same map with new feature vectors (one row per imprint)."""
+        features = jnp.asarray(features, jnp.float32)
+        if features.ndim != 2 or features.shape[0] != len(self):
+            raise ValueError(f"features must be ({len(self)}, F), got {features.shape}")
+        return self.replace(features=features)
+
+    def subset(self, index) -> TactileMap:
+        """The imprints at ``index`` (an integer array, slice or boolean mask over K)."""
+        return jax.tree.map(lambda x: x[index], self)

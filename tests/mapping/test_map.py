@@ -1,0 +1,125 @@
+"""TactileMap: built from predicted heightmaps, placed by the kinematics, saved, exported."""
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tactojax.geometry import T_gripper_sensor
+from tactojax.io import CorruptMapError, export_ply, load_tactile_map, open_dataset, save_tactile_map
+from tactojax.mapping import (NOISE_LEVELS, KinematicNoise, perturb_kinematics, sample_contact_points,
+                              stitched_point_cloud, surface_distance, voxel_downsample)
+from tactojax.objects import get_object
+
+
+def _matrix(wxyz_xyz: np.ndarray) -> np.ndarray:
+    """4x4 homogeneous transform from (..., 7) wxyz + xyz, with scipy (independent of jaxlie)."""
+    wxyz_xyz = np.asarray(wxyz_xyz, np.float64)
+    matrix = np.zeros((*wxyz_xyz.shape[:-1], 4, 4))
+    matrix[..., :3, :3] = Rotation.from_quat(wxyz_xyz[..., [1, 2, 3, 0]]).as_matrix()
+    matrix[..., :3, 3] = wxyz_xyz[..., 4:]
+    matrix[..., 3, 3] = 1.0
+    return matrix
+
+
+def test_imprints_are_placed_by_the_kinematics(cylinder_map, mapping_dataset):
+    records = open_dataset(mapping_dataset).read(["T_world_gripper", "T_world_object", "opening_mm"])
+    # T_object_sensor = T_world_object^-1 T_world_gripper T_gripper_sensor(opening), in numpy.
+    T_gripper_sensor_np = np.stack([_matrix(np.asarray(T_gripper_sensor(jnp.float32(o)).wxyz_xyz))
+                                    for o in records["opening_mm"]])
+    expected = (np.linalg.inv(_matrix(records["T_world_object"])) @ _matrix(records["T_world_gripper"])
+                @ T_gripper_sensor_np)
+    points = np.asarray(cylinder_map.points, np.float64)
+    expected_points = np.einsum("kij,kpj->kpi", expected[:, :3, :3], points) + expected[:, None, :3, 3]
+    np.testing.assert_allclose(np.asarray(cylinder_map.points_object), expected_points, atol=2e-3)
+    normals = np.einsum("kij,kpj->kpi", expected[:, :3, :3], np.asarray(cylinder_map.normals, np.float64))
+    np.testing.assert_allclose(np.asarray(cylinder_map.normals_object), normals, atol=1e-4)
+
+
+def test_map_points_lie_on_the_true_surface(cylinder_map):
+    points, normals = stitched_point_cloud(cylinder_map)
+    assert len(points) > 1000 and int(cylinder_map.imprint_valid.sum()) >= 0.9 * len(cylinder_map)
+    distance = surface_distance(get_object("cylinder"), points)
+    # Predicted heightmaps (lookup model, 0.4 mm/px), placed by exact kinematics.
+    assert distance["median"] < 0.25 and distance["p95"] < 1.0
+    # Normals point out of the object: along the SDF gradient.
+    solid = get_object("cylinder").solid
+    gradient = np.asarray(jax.vmap(jax.grad(solid.sdf))(jnp.asarray(points)))
+    assert np.median(np.sum(gradient * normals, axis=1)) > 0.9
+
+
+def test_sample_contact_points_draws_from_the_mask():
+    heightmap = jnp.asarray(np.random.default_rng(0).uniform(0, 1, (12, 16)), jnp.float32)
+    mask = jnp.zeros((12, 16), bool).at[3:6, 4:9].set(True)  # 15 contact pixels
+    for count, expected_valid in [(8, 8), (32, 15)]:
+        points, normals, valid = sample_contact_points(jax.random.key(1), heightmap, mask, 0.5, count)
+        assert points.shape == (count, 3) and normals.shape == (count, 3)
+        assert int(valid.sum()) == expected_valid
+        chosen = np.asarray(points)[np.asarray(valid)]
+        assert len(np.unique(chosen, axis=0)) == expected_valid  # no pixel twice
+        # Each valid point is (x, y, -h) of a contact pixel.
+        columns = np.round(chosen[:, 0] / 0.5 + 7.5).astype(int)
+        rows = np.round(chosen[:, 1] / 0.5 + 5.5).astype(int)
+        assert np.asarray(mask)[rows, columns].all()
+        np.testing.assert_allclose(-chosen[:, 2], np.asarray(heightmap)[rows, columns], atol=1e-6)
+
+
+def test_voxel_downsample_matches_a_dictionary_reference():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-5, 5, (500, 3))
+    normals = rng.normal(size=(500, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    down, down_normals = voxel_downsample(points, normals, 2.0)
+    cells: dict = {}
+    for p in points:
+        cells.setdefault(tuple(np.floor(p / 2.0).astype(int)), []).append(p)
+    reference = np.array(sorted(np.mean(v, axis=0).tolist() for v in cells.values()))
+    np.testing.assert_allclose(np.array(sorted(down.tolist())), reference, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(down_normals, axis=1), 1.0, atol=1e-5)
+
+
+def test_save_load_round_trip_and_clear_errors(cylinder_map, tmp_path):
+    path = save_tactile_map(tmp_path / "map.npz", cylinder_map, metadata={"note": "test"})
+    loaded = load_tactile_map(path)
+    assert loaded.object_id == cylinder_map.object_id and loaded.mm_per_px == cylinder_map.mm_per_px
+    for a, b in zip(jax.tree.leaves(cylinder_map), jax.tree.leaves(loaded)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    path.with_name("cut.npz").write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(CorruptMapError):
+        load_tactile_map(path.with_name("cut.npz"))
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(CorruptMapError):
+        load_tactile_map(tmp_path / "other.npz")
+    with pytest.raises(FileNotFoundError):
+        load_tactile_map(tmp_path / "missing.npz")
+    wrong = cylinder_map.replace(valid=cylinder_map.valid[:, :10])
+    save_tactile_map(tmp_path / "wrong.npz", wrong)
+    with pytest.raises(CorruptMapError, match="valid"):
+        load_tactile_map(tmp_path / "wrong.npz")
+
+
+def test_ply_export_reads_back(cylinder_map, tmp_path):
+    import trimesh
+
+    count = export_ply(tmp_path / "map.ply", cylinder_map, voxel_mm=1.0)
+    cloud = trimesh.load(tmp_path / "map.ply")
+    expected, _ = stitched_point_cloud(cylinder_map, voxel_mm=1.0)
+    assert count == len(expected) == len(cloud.vertices)
+    np.testing.assert_allclose(np.asarray(cloud.vertices), expected, atol=1e-5)
+
+
+def test_kinematic_noise_has_the_stated_spread():
+    count = 4000
+    poses = jaxlie.SE3.from_translation(jnp.zeros((count, 3)))
+    openings = jnp.full((count,), 30.0)
+    same_poses, same_openings = perturb_kinematics(jax.random.key(0), poses, openings, KinematicNoise())
+    np.testing.assert_array_equal(np.asarray(same_openings), np.asarray(openings))
+    np.testing.assert_allclose(np.asarray(same_poses.wxyz_xyz), np.asarray(poses.wxyz_xyz), atol=1e-7)
+    noise = NOISE_LEVELS["realistic"]
+    noisy, noisy_openings = perturb_kinematics(jax.random.key(0), poses, openings, noise)
+    assert np.std(np.asarray(noisy.translation()), axis=0) == pytest.approx([noise.translation_mm] * 3, rel=0.1)
+    angles = np.rad2deg(np.asarray(noisy.rotation().log()))
+    assert np.std(angles, axis=0) == pytest.approx([noise.rotation_deg] * 3, rel=0.1)
+    assert np.std(np.asarray(noisy_openings)) == pytest.approx(noise.opening_mm, rel=0.1)
