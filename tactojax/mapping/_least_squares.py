@@ -12,14 +12,15 @@ vector of residuals in mm and ``rho`` is a robust loss of scale ``robust_scale_m
 * ``"huber"``: ``r^2 / 2`` for ``|r| <= c``, ``c (|r| - c / 2)`` beyond,
 * ``"cauchy"``: ``c^2 / 2 log(1 + (r / c)^2)``.
 
-Each iteration linearises the residuals (Jacobian by ``jax.jacfwd``: theta is small, N may be
-~50k), recomputes the iteratively-reweighted-least-squares weights ``rho'(r) / r`` at the current
-residuals, and solves the Marquardt-damped normal equations
-``(J^T W J + lambda D) delta = -J^T W r`` with ``D`` the (floored) diagonal of ``J^T W J``. The
-right-hand side is the exact gradient of the robust cost, so the fixed points are its
-stationary points (the same ones as ``scipy.optimize.least_squares`` with the same loss). A step
-is accepted if it lowers the robust cost; the damping shrinks after an accepted step and grows
-after a rejected one.
+Each iteration evaluates the residuals and their Jacobian (``jax.jacfwd``: theta is small, N
+may be ~50k) at a trial point, the first being ``theta0``; the trial is accepted if it lowers
+the robust cost, and the damping then shrinks (else it grows). The next trial solves the
+Marquardt-damped normal equations at the best point,
+``(J^T W J + lambda D) delta = -J^T W r``, with the iteratively-reweighted-least-squares
+weights ``W = diag(weights * rho'(r) / r)`` recomputed at its residuals and ``D`` the (floored)
+diagonal of ``J^T W J``. The right-hand side is the exact gradient of the robust cost, so the
+fixed points are its stationary points (the same ones as ``scipy.optimize.least_squares`` with
+the same loss). The residual function is traced once, inside ``jax.jacfwd``.
 
 Everything runs in one ``jax.lax.while_loop`` with a fixed iteration cap, so it jits, vmaps and
 never raises: a non-finite cost or an exhausted iteration budget comes back as
@@ -53,7 +54,7 @@ class LeastSquaresResult:
     cost: Float[Array, ""]
     """Robust cost ``sum_i weights_i rho(r_i)`` at ``theta``, mm^2 when residuals are in mm."""
     iterations: Int[Array, ""]
-    """Number of iterations run (accepted and rejected steps)."""
+    """Iterations run: evaluations of residuals and Jacobian, the first at ``theta0``."""
     converged: Bool[Array, ""]
     """A tolerance was met (cost, step or gradient) with a finite cost; False when the iteration
     cap was reached first or the cost was not finite."""
@@ -118,8 +119,7 @@ def solve_least_squares(
     """Minimise a robust sum of squared residuals by Levenberg-Marquardt (pure JAX, jittable).
 
     Args:
-        residual_fn: ``theta -> (N,)`` residuals, mm; differentiable in theta. It is traced once
-            (inside ``jax.jacfwd``), which keeps compilation short.
+        residual_fn: ``theta -> (N,)`` residuals, mm; differentiable in theta.
         theta0: initial parameters, any pytree of float arrays (flattened internally).
         max_iterations: cap on iterations, each one evaluation of the residuals and their
             Jacobian (the first at ``theta0``); a Python int or a traced integer.
