@@ -2,6 +2,7 @@
 
 from tactojax.mapping._build import DEFAULT_POINTS_PER_IMPRINT as DEFAULT_POINTS_PER_IMPRINT
 from tactojax.mapping._build import build_tactile_map as build_tactile_map
+from tactojax.mapping._build import observed_contact as observed_contact
 from tactojax.mapping._build import sample_contact_points as sample_contact_points
 from tactojax.mapping._cloud import point_surface_distances as point_surface_distances
 from tactojax.mapping._cloud import stitched_point_cloud as stitched_point_cloud
@@ -28,6 +29,7 @@ __all__ = [
     "build_tactile_map",
     "fit_shape",
     "fit_tactile_map",
+    "observed_contact",
     "perturb_kinematics",
     "point_surface_distances",
     "sample_contact_points",

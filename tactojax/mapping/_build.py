@@ -18,6 +18,48 @@ from tactojax.shape import ShapeModel, check_image, predict_batch
 DEFAULT_POINTS_PER_IMPRINT = 1024
 """Contact points kept per imprint (about a fifth of a typical half-resolution patch)."""
 
+SIGNAL_THRESHOLD = 0.05
+"""Colour change against the background (max over RGB of the 3x3 mean, image in [0, 1]) that
+counts as a clear observation of the surface slope; camera noise is about 0.013 (median)."""
+
+OBSERVATION_RADIUS_MM = 3.0
+"""Predicted contact pixels farther than this from any clear colour change are dropped."""
+
+
+def observed_contact(
+    image: Float[Array, "H W 3"],
+    background: Float[Array, "H W 3"],
+    mask: Bool[Array, "H W"],
+    mm_per_px: float,
+    *,
+    threshold: float = SIGNAL_THRESHOLD,
+    radius_mm: float = OBSERVATION_RADIUS_MM,
+) -> Bool[Array, "H W"]:
+    """The part of a predicted contact mask that the image actually observes.
+
+    A camera-based sensor sees surface *slope* (colour changes); the height of a flat region
+    is only carried over from its edges by the Poisson integration. Where the edges' slopes are
+    misjudged (steep walls, a tilted face seen edge-on) that integration leaves plateaus of
+    false contact across the rest of the gel, which would be placed centimetres off the object.
+    Keeping only contact pixels within ``radius_mm`` of a clear colour change removes them; a
+    flat face keeps a band along its visible edges, which fixes its depth.
+
+    Args:
+        image, background: (H, W, 3) RGB in [0, 1].
+        mask: (H, W) predicted contact mask.
+        mm_per_px: pixel pitch, mm.
+        threshold: colour change that counts as a clear observation (see ``SIGNAL_THRESHOLD``).
+        radius_mm: how far from one a contact pixel may be, mm.
+
+    Returns:
+        (H, W) mask, a subset of ``mask``.
+    """
+    change = jax.lax.reduce_window(image - background, 0.0, jax.lax.add, (3, 3, 1), (1, 1, 1), "SAME") / 9.0
+    strong = (jnp.max(jnp.abs(change), axis=-1) > threshold).astype(jnp.float32)
+    size = 2 * int(round(radius_mm / mm_per_px)) + 1
+    near = jax.lax.reduce_window(strong, 0.0, jax.lax.max, (size, size), (1, 1), "SAME") > 0.0
+    return mask & near
+
 
 def sample_contact_points(
     key: PRNGKeyArray,
@@ -48,9 +90,12 @@ def sample_contact_points(
     return points, normals, flat_mask[index]
 
 
-@functools.partial(jax.jit, static_argnames=("count",))
-def _predict_and_sample(model: ShapeModel, keys, images, count: int):
+@functools.partial(jax.jit, static_argnames=("count", "observed_only"))
+def _predict_and_sample(model: ShapeModel, keys, images, count: int, observed_only: bool):
     heightmaps, masks = predict_batch(model, images)
+    if observed_only:
+        observe = jax.vmap(observed_contact, in_axes=(0, None, 0, None))
+        masks = observe(images, model.background, masks, model.mm_per_px)
     sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
     points, normals, valid = sample(keys, heightmaps, masks, model.mm_per_px, count)
     return heightmaps, masks, points, normals, valid
@@ -65,6 +110,7 @@ def build_tactile_map(
     *,
     T_world_object: jaxlie.SE3 | None = None,
     points_per_imprint: int = DEFAULT_POINTS_PER_IMPRINT,
+    observed_only: bool = True,
     batch_size: int = 32,
     key: PRNGKeyArray | None = None,
     progress: bool = True,
@@ -83,6 +129,8 @@ def build_tactile_map(
         T_world_object: (K,) object poses (the mapping protocol turns the object); default
             identity, i.e. the map frame is the world frame.
         points_per_imprint: P, contact points sampled per imprint.
+        observed_only: keep only contact the image observes (:func:`observed_contact`); the
+            stored masks are then those observed masks.
         batch_size: images per prediction batch (the last batch is padded, so one compile).
         key: PRNG key for the point sampling (default ``jax.random.key(0)``).
         progress: show a progress bar.
@@ -104,7 +152,7 @@ def build_tactile_map(
         index = np.minimum(np.arange(start, start + batch_size), count - 1)
         keys = jax.random.split(jax.random.fold_in(key, start), batch_size)
         batch = jnp.asarray(uint8[index], jnp.float32) / 255.0
-        outputs = _predict_and_sample(model, keys, batch, points_per_imprint)
+        outputs = _predict_and_sample(model, keys, batch, points_per_imprint, observed_only)
         keep = min(batch_size, count - start)
         parts.append([np.asarray(x)[:keep] for x in outputs])
         bar.update(keep)

@@ -123,3 +123,21 @@ def test_kinematic_noise_has_the_stated_spread():
     angles = np.rad2deg(np.asarray(noisy.rotation().log()))
     assert np.std(angles, axis=0) == pytest.approx([noise.rotation_deg] * 3, rel=0.1)
     assert np.std(np.asarray(noisy_openings)) == pytest.approx(noise.opening_mm, rel=0.1)
+
+
+def test_observed_contact_matches_a_scipy_reference():
+    from scipy import ndimage
+
+    from tactojax.mapping import observed_contact
+
+    rng = np.random.default_rng(0)
+    background = rng.uniform(0.3, 0.6, (30, 40, 3)).astype(np.float32)
+    image = background + rng.normal(0, 0.01, background.shape).astype(np.float32)
+    image[10:13, 5:8] += 0.3  # one clearly observed spot
+    mask = rng.uniform(size=(30, 40)) > 0.3
+    observed = observed_contact(jnp.asarray(image), jnp.asarray(background), jnp.asarray(mask), 0.5,
+                                threshold=0.05, radius_mm=2.0)
+    change = np.abs(ndimage.uniform_filter(image - background, size=(3, 3, 1), mode="constant")).max(-1)
+    near = ndimage.maximum_filter(change > 0.05, size=9, mode="constant")  # 2 mm = 4 px each way
+    np.testing.assert_array_equal(np.asarray(observed), mask & near)
+    assert 0 < np.asarray(observed).sum() < mask.sum()
