@@ -30,7 +30,7 @@ def tactile_map_figure(
     """
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
-    from tactojax.io._atomic import atomic_open
+    from tactojax.viz._save import save_png
 
     points = np.asarray(points)
     if len(points) == 0:
@@ -69,9 +69,4 @@ def tactile_map_figure(
         ax.set_yticks([])
     if title:
         figure.suptitle(title, fontsize=11)
-    figure.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_open(path, "wb") as handle:
-        figure.savefig(handle, format="png", dpi=100)
-    return path
+    return save_png(figure, path, dpi=100)

@@ -27,7 +27,7 @@ def shape_examples_figure(
     """
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
-    from tactojax.io._atomic import atomic_open
+    from tactojax.viz._save import save_png
 
     count = len(images)
     height, width = np.shape(images)[1:3]
@@ -53,9 +53,4 @@ def shape_examples_figure(
                          fontsize=9)
             ax.set_xticks([])
             ax.set_yticks([])
-    figure.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_open(path, "wb") as handle:
-        figure.savefig(handle, format="png", dpi=90)
-    return path
+    return save_png(figure, path, dpi=90)
