@@ -65,6 +65,8 @@ _ROLL_STEPS = 24  # roll grid over [0, pi/2) for square cross-sections: 3.75 deg
 _JOINT_STEPS = 17  # step-position grid for the double-cylinder, 10 % .. 90 % of the length
 _COARSE_SCALE_FACTOR = 5.0  # Cauchy scale of the first stage, in units of robust_scale_mm
 _INLIER_FACTOR = 3.0  # inliers: |distance| < 3 robust_scale_mm
+_STEP_QUANTILE = 0.005  # the double cylinder's step: this quantile of the big side's axial positions
+# (the membrane wrapping the step's edge smears a few hundred of ~10^5 points past it)
 _END_QUANTILE = 0.0005  # untouched ends: this quantile of the on-surface points' axial positions
 
 
@@ -298,14 +300,33 @@ def _initial_guess(kind: str, points: Float[Array, "N 3"], valid: Bool[Array, "N
 
 # --------------------------------------------------------------------------- reporting
 
+def _big_cylinder_extent(kind: str, theta, points_initial, on_surface, axial) -> Float[Array, "2"]:
+    """(lowest, highest) axial position of on-surface points on the bigger radius, mm (double
+    cylinder only; +-inf otherwise or without such points)."""
+    if kind != "double-cylinder":
+        return jnp.array([jnp.inf, jnp.inf])
+    local = _local_points(theta["pose"], points_initial, _MODELS[kind].rolls)
+    radial = jnp.linalg.norm(local[:, 1:], axis=-1)
+    r_start, r_end = _positive(theta["sizes"][0]), _positive(theta["sizes"][1])
+    big = on_surface & (jnp.abs(radial - jnp.maximum(r_start, r_end)) < 0.25 * jnp.abs(r_start - r_end))
+    low, high = _masked_quantiles(axial, big, (_STEP_QUANTILE, 1.0 - _STEP_QUANTILE))
+    return jnp.where(jnp.any(big), jnp.stack([low, high]), jnp.inf)
+
+
 def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_initial: Float[Array, "3"],
-            axial_low: Float[Array, ""], axial_high: Float[Array, ""]):
+            axial_low: Float[Array, ""], axial_high: Float[Array, ""], step_axial: Float[Array, "2"]):
     """Named parameters and ``T_object_shape`` (bigger end at -x, centred on the length).
 
     An end face that no point touched is not pinned by the least squares (the cost is flat
     beyond the last point), so each end is first pulled in to ``axial_low`` / ``axial_high``
     (mm along the fitted axis), where the points on the surface stop; a touched end face
     already lies there. Sizes that vary along the axis are re-evaluated at the new ends.
+
+    The double cylinder's step is not pinned either: the jaws cannot reach the small cylinder
+    next to the step (the big one is in the way), so no point lies between where the big
+    cylinder's touched surface stops and where the small one's starts, and the cost is flat
+    there. The step goes where the big cylinder's surface stops (``step_axial``: its last
+    on-surface point towards +x, and towards -x): a longer big cylinder would have been touched.
     """
     model = _MODELS[kind]
     sizes = theta["sizes"]
@@ -332,8 +353,10 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
                       "top_radius_mm": top, "length_mm": length}
     elif kind == "double-cylinder":
         r_start, r_end = _positive(sizes[0]), _positive(sizes[1])
-        joint = jnp.clip(_joint_position(sizes, centre, fitted_length), start, end) - start
         flip = r_end > r_start
+        step = jnp.where(flip, step_axial[0], step_axial[1])
+        step = jnp.where(jnp.isfinite(step), step, _joint_position(sizes, centre, fitted_length))
+        joint = jnp.clip(step, start, end) - start
         parameters = {"big_radius_mm": jnp.maximum(r_start, r_end),
                       "small_radius_mm": jnp.minimum(r_start, r_end),
                       "joint_mm": jnp.where(flip, length - joint, joint), "length_mm": length}
@@ -395,7 +418,9 @@ def _fit_shape(points, valid, robust_scale_mm, *, kind: str, max_iterations: int
     axial_low, axial_high = _masked_quantiles(axial, on_surface, (_END_QUANTILE, 1.0 - _END_QUANTILE))
     axial_low = jnp.where(jnp.any(on_surface), axial_low, -jnp.inf)
     axial_high = jnp.where(jnp.any(on_surface), axial_high, jnp.inf)
-    parameters, T_object_shape = _report(kind, theta, rotation_initial, origin_initial, axial_low, axial_high)
+    step_axial = _big_cylinder_extent(kind, theta, points_initial, on_surface, axial)
+    parameters, T_object_shape = _report(kind, theta, rotation_initial, origin_initial, axial_low, axial_high,
+                                         step_axial)
 
     # 4. Quality, with every number finite whatever came in.
     count = jnp.sum(valid)
