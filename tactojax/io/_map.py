@@ -59,13 +59,15 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     return path
 
 
-def _read_npz(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+def _read_npz(path: Path, *, arrays: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
+    """(header, arrays) of a map file; ``arrays=False`` reads only the header (no decompression
+    of the images and heightmaps)."""
     if not path.is_file():
         raise FileNotFoundError(f"no tactile map at {path}")
     try:
         with np.load(path, allow_pickle=False) as npz:
-            contents = {name: npz[name] for name in npz.files}
-        header = json.loads(str(contents.pop("header")))
+            header = json.loads(str(npz["header"]))
+            contents = {name: npz[name] for name in npz.files if name != "header"} if arrays else {}
     except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError) as error:
         raise CorruptMapError(f"{path} is not a readable tactile map ({error})") from None
     if not isinstance(header, dict) or header.get("format") != MAP_FORMAT:
@@ -112,7 +114,7 @@ def load_tactile_map(path) -> TactileMap:
 
 def tactile_map_metadata(path) -> dict:
     """The header of a map file (object, pitch, sensor and its ``metadata`` dict)."""
-    header, _ = _read_npz(Path(path))
+    header, _ = _read_npz(Path(path), arrays=False)
     return header
 
 

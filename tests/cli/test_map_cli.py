@@ -39,3 +39,11 @@ def test_map_rejects_a_model_for_another_sensor(mapping_dataset, tmp_path, capsy
     assert main(["map", str(mapping_dataset), "--out", str(tmp_path / "map.npz"),
                  "--kinematic-noise", "wobbly"]) == 2
     assert main(["fit-shape", str(tmp_path / "missing.npz"), "--kind", "cylinder"]) == 2
+
+
+def test_fit_shape_kinds_match_the_library():
+    # The CLI lists the kinds without importing JAX at start-up; they must stay the library's.
+    from tactojax.cli._fit_shape import KINDS
+    from tactojax.mapping import SHAPE_KINDS
+
+    assert KINDS == SHAPE_KINDS
