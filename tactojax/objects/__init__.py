@@ -11,6 +11,8 @@ from tactojax.objects._catalog import resolve_object as resolve_object
 from tactojax.objects._mesh import MeshSolid as MeshSolid
 from tactojax.objects._mesh import mount_mesh as mount_mesh
 from tactojax.objects._object import TactileObject as TactileObject
+from tactojax.objects._symmetry import NO_SYMMETRY as NO_SYMMETRY
+from tactojax.objects._symmetry import ObjectSymmetry as ObjectSymmetry
 from tactojax.objects._primitives import Box as Box
 from tactojax.objects._primitives import Cylinder as Cylinder
 from tactojax.objects._primitives import Difference as Difference
@@ -25,8 +27,8 @@ from tactojax.objects._raycast import RayHits as RayHits
 from tactojax.objects._raycast import raycast as raycast
 
 __all__ = [
-    "CALIBRATION_SHAPES", "CATALOG", "HOUSEHOLD_OBJECTS", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
-    "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "Placed", "RayHits", "Solid",
+    "CALIBRATION_SHAPES", "CATALOG", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
+    "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "ObjectSymmetry", "Placed", "RayHits", "Solid",
     "Sphere", "SquareFrustum", "TactileObject", "Union", "get_object", "mount_mesh",
     "object_from_mesh", "placed", "raycast", "resolve_object",
 ]

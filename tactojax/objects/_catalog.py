@@ -17,6 +17,7 @@ import numpy as np
 
 from tactojax.objects._mesh import MeshSolid, mount_mesh
 from tactojax.objects._object import TactileObject
+from tactojax.objects._symmetry import ObjectSymmetry
 from tactojax.objects._primitives import (
     Box, Cylinder, Difference, Frustum, Sphere, SquareFrustum, Union, placed,
 )
@@ -79,7 +80,8 @@ def _cylinder() -> TactileObject:
     r, length = 25.0, 80.0
     solid = placed(Cylinder(_f(r), _f(length / 2)), rotation=_ALONG_X)
     return TactileObject("cylinder", solid, _bounds([-length / 2, -r, -r], [length / 2, r, r]), "table2",
-                         "cylinder, radius 25 mm, length 80 mm", parameters={"radius_mm": r})
+                         "cylinder, radius 25 mm, length 80 mm", parameters={"radius_mm": r},
+                         symmetry=ObjectSymmetry(axis="x", flips=("z",)))
 
 
 def _semicone() -> TactileObject:
@@ -111,7 +113,8 @@ def _cuboid() -> TactileObject:
     half = np.array([length, side_2, side_1]) / 2
     return TactileObject("cuboid", Box(jnp.asarray(half, jnp.float32)), _bounds(-half, half), "table2",
                          "cuboid, 25 x 20 mm section, 80 mm long",
-                         parameters={"side_1_mm": side_1, "side_2_mm": side_2})
+                         parameters={"side_1_mm": side_1, "side_2_mm": side_2},
+                         symmetry=ObjectSymmetry(axis="x", fold=2, flips=("z",)))
 
 
 def _semipyramid() -> TactileObject:
@@ -133,7 +136,8 @@ def _tape_roll() -> TactileObject:
     return TactileObject(
         "tape_roll", solid, _bounds([-outer, -width / 2, -outer], [outer, width / 2, outer]), "household",
         "procedural stand-in for the paper's tape roll: 96 mm outer, 75 mm inner diameter, 48 mm wide",
-        parameters={"outer_radius_mm": outer, "inner_radius_mm": inner, "width_mm": width})
+        parameters={"outer_radius_mm": outer, "inner_radius_mm": inner, "width_mm": width},
+        symmetry=ObjectSymmetry(axis="y", flips=("z",)))
 
 
 def _gum_box() -> TactileObject:
@@ -145,16 +149,22 @@ def _gum_box() -> TactileObject:
     return TactileObject(
         "gum_box", solid, _bounds([-lid[0], -lid[1], -body[2]], hi), "household",
         "procedural stand-in for the paper's gum box: 80 x 22 x 50 mm box with a 1 mm proud lid band "
-        "(14 mm tall) at the top, which breaks the box's symmetry")
+        "(14 mm tall) at the top, which breaks the box's symmetry",
+        symmetry=ObjectSymmetry(axis="z", fold=2))
 
 
-def _ycb(name: str, ycb_id: str, description: str) -> Callable[[], TactileObject]:
+def _ycb(name: str, ycb_id: str, description: str, *, axial: bool = False) -> Callable[[], TactileObject]:
+    """A YCB scan; ``axial``: (approximately) symmetric about its long axis (x, through the
+    centre of its y/z bounds)."""
     def build() -> TactileObject:
         from tactojax.io import ycb_mesh_path, load_mesh
 
         mesh = mount_mesh(load_mesh(ycb_mesh_path(ycb_id), units="m"))
-        return TactileObject(name, MeshSolid(mesh), np.asarray(mesh.bounds), "household",
-                             description, attribution=YCB_ATTRIBUTION, parameters={"ycb_id": ycb_id})
+        bounds = np.asarray(mesh.bounds)
+        centre = (0.0, *(float(c) for c in bounds.mean(axis=0)[1:]))
+        symmetry = ObjectSymmetry(axis="x", centre=centre, exact=False) if axial else ObjectSymmetry()
+        return TactileObject(name, MeshSolid(mesh), bounds, "household", description,
+                             attribution=YCB_ATTRIBUTION, parameters={"ycb_id": ycb_id}, symmetry=symmetry)
     return build
 
 
@@ -172,8 +182,8 @@ CATALOG: dict[str, Callable[[], TactileObject]] = {
     "tape_roll": _tape_roll,
     "gum_box": _gum_box,
     "scissors": _ycb("scissors", "037_scissors", "YCB 037 scissors (real scan)"),
-    "large_marker": _ycb("large_marker", "040_large_marker", "YCB 040 large marker (stand-in for the paper's flashlight)"),
-    "screwdriver": _ycb("screwdriver", "043_phillips_screwdriver", "YCB 043 Phillips screwdriver (stand-in for the paper's brush)"),
+    "large_marker": _ycb("large_marker", "040_large_marker", "YCB 040 large marker (stand-in for the paper's flashlight)", axial=True),
+    "screwdriver": _ycb("screwdriver", "043_phillips_screwdriver", "YCB 043 Phillips screwdriver (stand-in for the paper's brush)", axial=True),
     "foam_brick": _ycb("foam_brick", "061_foam_brick", "YCB 061 foam brick (real scan)"),
 }
 CALIBRATION_SHAPES = tuple(n for n in CATALOG if n.startswith("calib_"))

@@ -8,6 +8,7 @@ import numpy as np
 
 from tactojax.objects._mesh import MeshSolid
 from tactojax.objects._primitives import Solid
+from tactojax.objects._symmetry import NO_SYMMETRY, ObjectSymmetry
 
 
 @dataclass(frozen=True, eq=False)
@@ -25,6 +26,8 @@ class TactileObject:
     attribution: str = ""
     parameters: dict = field(default_factory=dict)
     """True dimensions of parametric shapes (mm, radians), for shape recovery checks."""
+    symmetry: ObjectSymmetry = NO_SYMMETRY
+    """Rotations that map the object onto itself (symmetry-aware localization errors)."""
 
     @property
     def is_mesh(self) -> bool:
