@@ -70,3 +70,34 @@ def cylinder_map(mapping_dataset, lookup_model):
     return build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                              grasps["object_id"], T_world_object=grasps["T_world_object"],
                              points_per_imprint=256, batch_size=16, progress=False)
+
+
+@pytest.fixture(scope="session")
+def gum_box_map(tmp_path_factory, small_spec, lookup_model):
+    """A second object's map for identification: the gum box, 20 mm grid, yaw 0, all 4 turns."""
+    import jax
+
+    from tactojax.io import read_grasps, simulate_to_dataset
+    from tactojax.mapping import build_tactile_map
+    from tactojax.objects import get_object
+    from tactojax.simulate import MappingProtocol
+
+    path = tmp_path_factory.mktemp("data") / "gum_box"
+    simulate_to_dataset(path, jax.random.key(1), small_spec, get_object("gum_box"),
+                        MappingProtocol(grid_mm=20.0, yaws_deg=(0.0,)), progress=False)
+    grasps = read_grasps(path)
+    return build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
+                             grasps["object_id"], T_world_object=grasps["T_world_object"],
+                             points_per_imprint=256, batch_size=16, progress=False)
+
+
+@pytest.fixture(scope="session")
+def tiny_encoder_path(tmp_path_factory):
+    """A randomly initialised ResNetTiny encoder checkpoint (32 x 40 input) for CLI tests."""
+    import jax
+
+    from tactojax.features import init_encoder
+    from tactojax.io import save_encoder
+
+    encoder = init_encoder(jax.random.key(0), "resnet_tiny", (32, 40))
+    return save_encoder(tmp_path_factory.mktemp("encoders") / "tiny.msgpack", encoder)

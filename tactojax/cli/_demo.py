@@ -1,9 +1,15 @@
-"""``tactojax demo``: an end-to-end run on built-in objects.
+"""``tactojax demo``: the whole paper, end to end, on built-in objects in a few minutes.
 
-Simulate the mapping protocol on a few objects (paper section V), print a table, and save a
-figure of tactile images, heightmaps and the stitched ground-truth contact clouds; then recover
-every imprint's heightmap from its image with the bundled ``fast`` shape model (section IV),
-which never saw these objects, and report its error with a figure.
+1. Local shape (section IV): simulated calibration touches of the five calibration shapes; the
+   bundled ``fast`` model recovers their heightmaps from the images (Table I's measure).
+2. Tactile maps (section V): the mapping protocol on three household objects; every imprint's
+   heightmap is *predicted* by the bundled model and placed by the kinematics.
+3. Localization (section VI): leave-one-out RANDOM / CTI / CTI-ICP-1 / CTI-ICP-5 with the
+   bundled feature encoder (Table III), with error histograms.
+4. Identification (section VII): each held-out touch is assigned to the object whose map holds
+   the most similar imprint (confusion matrix).
+
+Tables are printed, figures saved as PNG and everything can be written as JSON.
 """
 
 from __future__ import annotations
@@ -16,33 +22,96 @@ import jax
 
 from tactojax.cli._table import format_table, write_json
 
-DEMO_OBJECTS = ("cylinder", "gum_box", "scissors")
+DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")
+DEMO_METHODS = ("random", "cti", "cti-icp-1", "cti-icp-5")
+DEFAULT_MODEL = "bundled:fast-gelslim-0.5"
+DEFAULT_ENCODER = "bundled:features-tactile"
 
 
 def add_parser(commands) -> None:
-    parser = commands.add_parser("demo", help="end-to-end run on built-in objects",
-                                 description="Simulate the mapping protocol on built-in objects and save a figure.")
+    parser = commands.add_parser("demo", help="the whole paper end to end on built-in objects",
+                                 description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="tactojax-demo", help="output folder (default ./tactojax-demo)")
     parser.add_argument("--objects", nargs="+", default=list(DEMO_OBJECTS))
-    parser.add_argument("--grid-mm", type=float, default=15.0, help="mapping grid, mm (default 15 for speed)")
+    parser.add_argument("--grid-mm", type=float, default=15.0, help="mapping grid, mm (default 15; the paper: 10)")
+    parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0],
+                        help="grasp yaws, degrees (default 0; the paper: 0 20 -20)")
     parser.add_argument("--scale", type=float, default=0.5, help="sensor resolution factor (default 0.5)")
-    parser.add_argument("--json", metavar="PATH", help="also write the table as JSON")
+    parser.add_argument("--calibration-touches", type=int, default=20, help="per calibration shape")
+    parser.add_argument("--queries", type=int, default=60, help="held-out touches per object for localization")
+    parser.add_argument("--methods", default=",".join(DEMO_METHODS))
+    parser.add_argument("--model", default=DEFAULT_MODEL, help="shape model")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder")
+    parser.add_argument("--json", metavar="PATH", help="also write every table as JSON")
     parser.add_argument("--seed", type=int, default=0)
     parser.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from tactojax.io import open_dataset, simulate_to_dataset
-    from tactojax.objects import get_object
+    from tactojax.io import resolve_encoder, resolve_shape_model
     from tactojax.sensor import gelslim
-    from tactojax.simulate import MappingProtocol, mapping_plan
-    from tactojax.viz import imprint_figure
 
+    start = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     spec = gelslim(scale=args.scale)
-    protocol = MappingProtocol(grid_mm=args.grid_mm)
-    rows, per_object = [], {}
+    if abs(spec.mm_per_px - model.mm_per_px) > 1e-6:
+        raise ValueError(f"the shape model is for {model.mm_per_px} mm/px, the demo sensor has {spec.mm_per_px}: "
+                         "pass --scale to match it")
+    report = {"local_shape": _local_shape(args, spec, model, out)}
+    maps, report["maps"] = _maps(args, spec, model, encoder, out)
+    report["localization"] = _localization(args, maps, out)
+    report["identification"] = _identification(maps, out)
+    report["seconds"] = time.perf_counter() - start
+    print(f"\ndemo finished in {report['seconds']:.0f} s; figures and maps in {out}/")
+    if args.json:
+        write_json(args.json, report)
+    return 0
+
+
+def _local_shape(args, spec, model, out: Path) -> dict:
+    """Section IV: heightmaps of simulated calibration touches recovered by the shape model."""
+    import numpy as np
+
+    from tactojax.cli._shape_report import print_shape_report
+    from tactojax.io import load_shape_data, simulate_to_dataset
+    from tactojax.objects import CALIBRATION_SHAPES, get_object
+    from tactojax.shape import evaluate_shape_model, predict_batch
+    from tactojax.simulate import CalibrationProtocol
+    from tactojax.viz import shape_examples_figure
+
+    path = out / "datasets" / "calibration"
+    shutil.rmtree(path, ignore_errors=True)
+    print(f"1/4 local shape: simulating {args.calibration_touches} touches of each calibration shape")
+    for index, name in enumerate(CALIBRATION_SHAPES):
+        simulate_to_dataset(path, jax.random.key(args.seed + index), spec, get_object(name),
+                            CalibrationProtocol(touches=args.calibration_touches), progress=False)
+    data = load_shape_data(path)
+    errors = evaluate_shape_model(model, data, progress=False)
+    summary = print_shape_report(errors, data.object_ids, title=f"local shape with {args.model} (paper: 0.060 mm)")
+    rows = [int(np.flatnonzero(data.object_ids == name)[0]) for name in dict.fromkeys(data.object_ids.tolist())]
+    padded = rows + [rows[-1]] * (32 - len(rows))  # reuse the evaluation's compiled batch size
+    predicted = np.asarray(predict_batch(model, data.images_float(padded))[0])[: len(rows)]
+    figure = shape_examples_figure(data.images[rows], data.heightmaps[rows], predicted, out / "demo_local_shape.png",
+                                   mm_per_px=spec.mm_per_px, titles=[str(data.object_ids[r]) for r in rows])
+    print(f"figure: {figure}")
+    return {"errors": summary, "figure": str(figure)}
+
+
+def _maps(args, spec, model, encoder, out: Path):
+    """Section V: simulate the mapping protocol, build each map from predicted heightmaps."""
+    from tactojax.features import encode_images
+    from tactojax.io import open_dataset, read_grasps, save_tactile_map, simulate_to_dataset
+    from tactojax.mapping import build_tactile_map, stitched_point_cloud, surface_distance
+    from tactojax.objects import get_object
+    from tactojax.simulate import MappingProtocol
+    from tactojax.viz import imprint_figure, tactile_map_figure
+
+    protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg))
+    maps, rows, records = [], [], {}
+    (out / "maps").mkdir(parents=True, exist_ok=True)
+    print(f"\n2/4 tactile maps: {protocol.grid_mm:g} mm grid, yaws {list(protocol.yaws_deg)} deg")
     for index, name in enumerate(args.objects):
         try:
             obj = get_object(name)
@@ -51,59 +120,68 @@ def run(args) -> int:
             continue
         dataset = out / "datasets" / name
         shutil.rmtree(dataset, ignore_errors=True)  # the demo starts each object afresh
-        start = time.perf_counter()
-        count = simulate_to_dataset(dataset, jax.random.key(args.seed + index), spec, obj, protocol)
-        seconds = time.perf_counter() - start
-        records = open_dataset(dataset).read()
-        per_object[name] = records
-        area = records["mask"].sum(axis=(1, 2)) * spec.mm_per_px**2
-        rows.append([name, len(mapping_plan(obj, protocol)), count, float(area.mean()) if count else 0.0,
-                     float(records["opening_mm"].mean()) if count else 0.0, seconds])
-    headers = ["object", "grasps planned", "imprints", "mean contact (mm^2)", "mean opening (mm)", "time (s)"]
+        started = time.perf_counter()
+        simulate_to_dataset(dataset, jax.random.key(args.seed + 100 + index), spec, obj, protocol)
+        records[name] = open_dataset(dataset).read()
+        grasps = read_grasps(dataset)
+        tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"], name,
+                                        T_world_object=grasps["T_world_object"], points_per_imprint=512)
+        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images))
+        save_tactile_map(out / "maps" / f"{name}.npz", tactile_map, metadata={"model": args.model, "encoder": args.encoder})
+        points, _ = stitched_point_cloud(tactile_map)
+        distance = surface_distance(obj, points)["mean"] if len(points) else float("nan")
+        rows.append([name, len(tactile_map), int(tactile_map.imprint_valid.sum()), distance,
+                     time.perf_counter() - started])
+        maps.append(tactile_map)
+    headers = ["object", "imprints", "with contact", "map to surface (mm)", "time (s)"]
     print(format_table(headers, rows))
-    figure = imprint_figure(per_object, spec.mm_per_px, out / "demo_imprints.png")
-    print(f"figure: {figure}")
-    report = {"rows": [dict(zip(headers, row)) for row in rows], "figure": str(figure)}
-    report["local_shape"] = _local_shape(per_object, spec, out)
-    if args.json:
-        write_json(args.json, report)
-    return 0
+    figure = imprint_figure(records, spec.mm_per_px, out / "demo_imprints.png")
+    first = maps[0]
+    cloud, _ = stitched_point_cloud(first, voxel_mm=0.5)
+    map_figure = tactile_map_figure(cloud, out / "demo_map.png", title=f"tactile map of {first.object_id}")
+    print(f"figures: {figure}, {map_figure}")
+    return maps, {"rows": [dict(zip(headers, row)) for row in rows], "figures": [str(figure), str(map_figure)]}
 
 
-def _local_shape(per_object: dict, spec, out: Path) -> dict | None:
-    """Heightmaps from images with the bundled model, against the simulator's ground truth."""
+def _localization(args, maps, out: Path) -> dict:
+    """Section VI: leave-one-out localization, Table III and histograms."""
     import numpy as np
 
-    from tactojax.cli._shape_report import print_shape_report
-    from tactojax.io import bundled_shape_models, resolve_shape_model
-    from tactojax.shape import ShapeData, evaluate_shape_model, predict_batch
-    from tactojax.viz import shape_examples_figure
+    from tactojax.cli._maps import object_symmetries
+    from tactojax.localize import evaluate_localization, parse_method
+    from tactojax.viz import localization_histogram_figure, save_png
 
-    name = f"fast-{spec.name}-{spec.height_px / 240:g}"
-    if name not in bundled_shape_models():
-        print(f"no bundled shape model for {spec.name} at {spec.height_px}x{spec.width_px} px; "
-              f"skipping local shape (bundled: {bundled_shape_models()})")
-        return None
-    model = resolve_shape_model(f"bundled:{name}")
-    records = [r for r in per_object.values() if len(r["image"])]
-    data = ShapeData(images=np.concatenate([r["image"] for r in records]),
-                     heightmaps=np.concatenate([r["heightmap"] for r in records]),
-                     masks=np.concatenate([r["mask"] for r in records]),
-                     object_ids=np.concatenate([r["object_id"] for r in records]).astype(str),
-                     mm_per_px=spec.mm_per_px, sensor=spec.name)
-    errors = evaluate_shape_model(model, data, progress=True)
-    summary = print_shape_report(errors, data.object_ids,
-                                 title=f"local shape: image -> heightmap with bundled:{name} (unseen objects)")
-    # One imprint per object: the one with the median contact area.
-    rows = []
-    for name in dict.fromkeys(data.object_ids.tolist()):
-        members = np.flatnonzero(data.object_ids == name)
-        areas = data.masks[members].sum(axis=(1, 2))
-        rows.append(int(members[np.argsort(areas)[len(areas) // 2]]))
-    padded = rows + [rows[-1]] * (32 - len(rows))  # reuse the evaluation's compiled batch size
-    predicted = np.asarray(predict_batch(model, data.images_float(padded))[0])[: len(rows)]
-    figure = shape_examples_figure(data.images[rows], data.heightmaps[rows], predicted,
-                                   out / "demo_local_shape.png", mm_per_px=spec.mm_per_px,
-                                   titles=[str(data.object_ids[r]) for r in rows])
+    methods = [parse_method(m).name for m in args.methods.split(",") if m.strip()]
+    print(f"\n3/4 localization: leave-one-out, up to {args.queries} held-out touches per object")
+    rows, histograms, payload = [], {}, {}
+    for tactile_map in maps:
+        valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+        if len(valid) > args.queries:
+            valid = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
+        symmetries = object_symmetries(tactile_map.object_id)
+        results = evaluate_localization(jax.random.key(args.seed), tactile_map, methods, symmetries=symmetries,
+                                        queries=valid, progress=True)
+        payload[tactile_map.object_id] = {m: r.summary() for m, r in results.items()}
+        histograms[tactile_map.object_id] = {m: r.rmse for m, r in results.items()}
+        rows.append([tactile_map.object_id, *(f"{np.median(r.rmse):.1f} ({np.median(r.symmetric_rmse):.1f})"
+                                              for r in results.values())])
+    print("median RMSE, mm (symmetry-aware in brackets); the paper: CTI 10-20, CTI-ICP-5 6.1-22.6")
+    print(format_table(["object", *methods], rows))
+    figure = save_png(localization_histogram_figure(histograms), out / "demo_localization.png")
     print(f"figure: {figure}")
-    return {"model": f"bundled:{name}", "errors": summary, "figure": str(figure)}
+    return {"objects": payload, "figure": str(figure)}
+
+
+def _identification(maps, out: Path) -> dict:
+    """Section VII: which object is in the hand, from one held-out touch."""
+    from tactojax.localize import evaluate_identification
+    from tactojax.viz import confusion_figure, save_png
+
+    print("\n4/4 identification: every touch held out of its own map")
+    result = evaluate_identification(maps)
+    confusion, names = result.confusion(), list(result.object_ids)
+    print(f"top-1 {100 * result.accuracy():.1f} % of {len(result.true)} touches")
+    print(format_table(["true \\ identified", *names], [[n, *map(int, confusion[i])] for i, n in enumerate(names)]))
+    figure = save_png(confusion_figure(confusion, names), out / "demo_identification.png")
+    print(f"figure: {figure}")
+    return {**result.summary(), "figure": str(figure)}

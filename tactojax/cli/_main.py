@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tactojax.cli import _calibrate, _demo, _eval_shape, _fit_shape, _info, _map, _show, _simulate, _train
+from tactojax.cli import (
+    _calibrate, _demo, _eval_localization, _eval_shape, _fit_shape, _identify, _info, _localize, _map, _show,
+    _simulate, _train, _train_features,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -14,7 +17,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Tactile mapping and localization from high-resolution tactile imprints.",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (_simulate, _info, _train, _eval_shape, _calibrate, _map, _fit_shape, _show, _demo):
+    for module in (_simulate, _info, _train, _eval_shape, _calibrate, _train_features, _map, _fit_shape, _show,
+                   _eval_localization, _identify, _localize, _demo):
         module.add_parser(commands)
     return parser
 

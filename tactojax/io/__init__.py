@@ -7,6 +7,12 @@ from tactojax.io._dataset import DatasetWriter as DatasetWriter
 from tactojax.io._dataset import dataset_summary as dataset_summary
 from tactojax.io._dataset import infer_schema as infer_schema
 from tactojax.io._dataset import open_dataset as open_dataset
+from tactojax.io._encoder import bundled_encoders as bundled_encoders
+from tactojax.io._encoder import encoder_metadata as encoder_metadata
+from tactojax.io._encoder import load_encoder as load_encoder
+from tactojax.io._encoder import load_touches as load_touches
+from tactojax.io._encoder import resolve_encoder as resolve_encoder
+from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._imprints import dataset_metadata as dataset_metadata
 from tactojax.io._imprints import load_imprints as load_imprints
 from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
@@ -36,12 +42,21 @@ from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageErro
 from tactojax.io._taxim import TaximCalibration as TaximCalibration
 from tactojax.io._taxim import load_taxim_calibration as load_taxim_calibration
 from tactojax.io._taxim import taxim_calibration_dir as taxim_calibration_dir
+from tactojax.io._torch_weights import CorruptTorchCheckpointError as CorruptTorchCheckpointError
+from tactojax.io._torch_weights import UnsafeCheckpointError as UnsafeCheckpointError
+from tactojax.io._torch_weights import load_torch_state_dict as load_torch_state_dict
 
 __all__ = [
     "CorruptDatasetError",
     "Dataset",
     "DatasetLockedError",
     "DatasetWriter",
+    "bundled_encoders",
+    "encoder_metadata",
+    "load_encoder",
+    "load_touches",
+    "resolve_encoder",
+    "save_encoder",
     "dataset_metadata",
     "dataset_summary",
     "infer_schema",
@@ -74,4 +89,7 @@ __all__ = [
     "TaximCalibration",
     "load_taxim_calibration",
     "taxim_calibration_dir",
+    "CorruptTorchCheckpointError",
+    "UnsafeCheckpointError",
+    "load_torch_state_dict",
 ]

@@ -1,0 +1,221 @@
+"""Localization speed and accuracy per touch, against Open3D's ICP in the same run (issue 5).
+
+One map of >= 500 imprints (default: the YCB scissors on the paper's 10 mm protocol). Each
+stage of a touch is timed on its own after compilation (steady-state median over ``--calls``
+touches, compile time reported apart):
+
+- heightmap prediction (the bundled shape model), features (the encoder), retrieval (CTI top-N
+  by cosine similarity among openings within 2 mm), registration (pure-JAX point-to-plane ICP);
+- the reference: the same retrieval, then Open3D's point-to-plane ICP of the query cloud against
+  the union of the N retrieved imprints' clouds, started at the closest one (the paper's
+  CTI-ICP-N with a peer library), on the same queries and points.
+
+Recompilations across the ``--calls`` localizations are counted (jax's compile log) and must be
+zero. Accuracy: leave-one-out median cloud RMSE (mm) of both pipelines on the same queries.
+
+    python benchmarks/localization.py --json localization_speed.json
+
+Needs the ``benchmark`` extra (``open3d-cpu``), which imports only with the Debian package
+``libusb-1.0-0`` installed (``apt-get install libusb-1.0-0``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from tactojax.features import encode_image, encode_images
+from tactojax.io import load_tactile_map, resolve_encoder, resolve_shape_model, simulate_to_dataset, read_grasps
+from tactojax.localize import (
+    IcpSettings, LocalizationMap, closest_imprints, estimate_pose, localize, map_query, parse_method, query_points,
+)
+from tactojax.mapping import build_tactile_map
+from tactojax.objects import get_object
+from tactojax.sensor import gelslim
+from tactojax.shape import predict
+from tactojax.simulate import MappingProtocol
+
+
+class CompileCounter(logging.Handler):
+    """Counts XLA compilations (jax logs one 'Compiling ...' line per compile when asked to)."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.count = 0
+
+    def emit(self, record):
+        if "Compiling" in record.getMessage():
+            self.count += 1
+
+
+def timed(function, calls: int) -> tuple[float, float]:
+    """(first-call seconds incl. compilation, steady-state median seconds) of ``function()``."""
+    start = time.perf_counter()
+    jax.block_until_ready(function())
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(calls):
+        start = time.perf_counter()
+        jax.block_until_ready(function())
+        times.append(time.perf_counter() - start)
+    return first, float(np.median(times))
+
+
+def build_map(work: Path, name: str, model, encoder):
+    """Simulate (once) and map one object, with features."""
+    path = work / f"{name}-grid10-gelslim0.5"
+    if not (path / "manifest.json").exists():
+        simulate_to_dataset(path, jax.random.key(0), gelslim(scale=0.5), get_object(name), MappingProtocol())
+    grasps = read_grasps(path)
+    tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"], name,
+                                    T_world_object=grasps["T_world_object"])
+    return tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+
+
+def open3d_register(o3d, source_points, target_points, target_normals, T_init, *, max_distance_mm, iterations):
+    """Open3D point-to-plane ICP: the query cloud (sensor frame) onto the target (object frame)."""
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_points.astype(np.float64)))
+    target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target_points.astype(np.float64)))
+    target.normals = o3d.utility.Vector3dVector(target_normals.astype(np.float64))
+    result = o3d.pipelines.registration.registration_icp(
+        source, target, max_distance_mm, T_init,
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=iterations))
+    return result.transformation
+
+
+def cloud_rmse(points: np.ndarray, T_true: np.ndarray, T_estimate: np.ndarray) -> float:
+    """RMSE (mm) between a cloud placed at the true and at the estimated pose."""
+    homogeneous = np.concatenate([points, np.ones((len(points), 1))], axis=1)
+    difference = homogeneous @ (T_true - T_estimate).T
+    return float(np.sqrt(np.mean(np.sum(difference[:, :3] ** 2, axis=1))))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--map", help="a saved map with >= 500 imprints (default: simulate and map --object)")
+    parser.add_argument("--object", default="scissors")
+    parser.add_argument("--work", default="benchmark-data/localization", help="simulated data cache")
+    parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
+    parser.add_argument("--encoder", default="bundled:features-tactile")
+    parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N (default 5)")
+    parser.add_argument("--calls", type=int, default=1000, help="timed localizations (default 1000)")
+    parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries for accuracy")
+    parser.add_argument("--json", metavar="PATH")
+    args = parser.parse_args()
+    import open3d as o3d  # benchmark-only dependency
+
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    if args.map:
+        tactile_map = load_tactile_map(args.map)
+        if tactile_map.features.shape[1] == 0:
+            tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    else:
+        tactile_map = build_map(Path(args.work), args.object, model, encoder)
+    view = LocalizationMap.from_tactile_map(tactile_map)
+    valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+    print(f"map: {tactile_map.object_id}, {len(tactile_map)} imprints ({len(valid)} with contact)")
+    method = parse_method(f"cti-icp-{args.n}")
+    settings = IcpSettings()
+    rng = np.random.default_rng(0)
+    order = rng.choice(valid, size=args.calls, replace=True)
+    image = jnp.asarray(tactile_map.images[int(order[0])], jnp.float32) / 255.0
+    query = map_query(view, int(order[0]))
+    key = jax.random.key(0)
+
+    # Stage timings, each jitted function on its own.
+    stages = {}
+    stages["heightmap"] = timed(lambda: predict(model, image), 50)
+    stages["features"] = timed(lambda: encode_image(encoder, image), 50)
+    retrieve = jax.jit(lambda q, exclude: closest_imprints(view.features, view.openings, view.imprint_valid,
+                                                           q.feature, q.opening, args.n, exclude=exclude))
+    stages["retrieval"] = timed(lambda: retrieve(query, 0), 200)
+    indices, _, index_valid = retrieve(query, int(order[0]))
+    sample = jax.jit(lambda k, q: query_points(k, q, view.mm_per_px))
+    points, points_valid = sample(key, query)
+    register = jax.jit(lambda p, pv, i, iv: estimate_pose(view, p, pv, i, iv, method, settings))
+    stages["registration"] = timed(lambda: register(points, points_valid, indices, index_valid), 200)
+
+    # End to end (retrieval + registration), many different touches, counting recompilations.
+    localize(key, view, query, method=method, exclude=int(order[0]))  # compile
+    counter = CompileCounter()
+    logging.getLogger("jax").addHandler(counter)
+    jax.config.update("jax_log_compiles", True)
+    times = []
+    for call, index in enumerate(order):
+        touch = map_query(view, int(index))
+        start = time.perf_counter()
+        jax.block_until_ready(localize(jax.random.fold_in(key, call), view, touch, method=method, exclude=int(index)))
+        times.append(time.perf_counter() - start)
+    jax.config.update("jax_log_compiles", False)
+    logging.getLogger("jax").removeHandler(counter)
+    jax_ms = 1e3 * float(np.median(times))
+
+    # Same queries through both pipelines: accuracy and Open3D's time.
+    queries = rng.choice(valid, size=min(args.queries, len(valid)), replace=False)
+    points_object, normals_object = np.asarray(tactile_map.points_object), np.asarray(tactile_map.normals_object)
+    point_valid = np.asarray(tactile_map.point_valid)
+    T_all = np.asarray(tactile_map.T_object_sensor.as_matrix())
+    jax_errors, o3d_errors, o3d_times, jax_times = [], [], [], []
+    for index in queries:
+        touch = map_query(view, int(index))
+        start = time.perf_counter()
+        estimate = jax.block_until_ready(localize(key, view, touch, method=method, exclude=int(index)))
+        jax_times.append(time.perf_counter() - start)
+        # Open3D pipeline: the same retrieval and query points, then Open3D ICP.
+        start = time.perf_counter()
+        top, _, top_valid = jax.device_get(retrieve(touch, int(index)))
+        # the points localize() samples from this query (it splits the key the same way)
+        p, pv = jax.device_get(sample(jax.random.split(key)[1], touch))
+        chosen = top[top_valid]
+        if len(chosen) == 0:
+            o3d_times.append(time.perf_counter() - start)
+            o3d_errors.append(np.nan)
+            jax_errors.append(np.nan)
+            continue
+        mask = point_valid[chosen].reshape(-1)
+        T_estimate = open3d_register(o3d, p[pv], points_object[chosen].reshape(-1, 3)[mask],
+                                     normals_object[chosen].reshape(-1, 3)[mask], T_all[chosen[0]],
+                                     max_distance_mm=settings.max_distance_mm, iterations=settings.iterations)
+        o3d_times.append(time.perf_counter() - start)
+        cloud = np.asarray(tactile_map.points[index])[np.asarray(tactile_map.valid[index])]
+        o3d_errors.append(cloud_rmse(cloud, T_all[index], T_estimate))
+        jax_errors.append(cloud_rmse(cloud, T_all[index], np.asarray(estimate.T_object_sensor.as_matrix())))
+
+    rows = [[stage, f"{1e3 * first:.0f}", f"{1e3 * steady:.2f}"] for stage, (first, steady) in stages.items()]
+    print("\nstage timings (ms): first call incl. compile, steady-state median")
+    for row in rows:
+        print(f"  {row[0]:<14}{row[1]:>10}{row[2]:>10}")
+    jax_median, o3d_median = float(np.nanmedian(jax_errors)), float(np.nanmedian(o3d_errors))
+    o3d_ms = 1e3 * float(np.median(o3d_times))
+    print(f"\nCTI-ICP-{args.n}, retrieval + registration per touch, {args.calls} calls:")
+    print(f"  tactojax (JAX)   {jax_ms:7.2f} ms   median RMSE {jax_median:6.2f} mm   recompilations {counter.count}")
+    print(f"  Open3D ICP       {o3d_ms:7.2f} ms   median RMSE {o3d_median:6.2f} mm")
+    print(f"  speed-up         {o3d_ms / jax_ms:7.1f}x")
+    if args.json:
+        result = {
+            "map": {"object": tactile_map.object_id, "imprints": len(tactile_map), "with_contact": int(len(valid))},
+            "method": method.name, "calls": args.calls, "recompilations": counter.count,
+            "stages_ms": {s: {"first_incl_compile": 1e3 * f, "steady_median": 1e3 * m} for s, (f, m) in stages.items()},
+            "tactojax_ms_per_touch": jax_ms, "open3d_ms_per_touch": o3d_ms, "speedup": o3d_ms / jax_ms,
+            "tactojax_median_rmse_mm": jax_median, "open3d_median_rmse_mm": o3d_median,
+            "accuracy_queries": int(len(queries)),
+            "machine": {"platform": platform.platform(), "processor": platform.processor(),
+                        "cpu_count": __import__("os").cpu_count(), "jax": jax.__version__,
+                        "backend": jax.default_backend(), "open3d": o3d.__version__},
+        }
+        Path(args.json).write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""Loading tactile maps for the localization commands, with their feature vectors."""
+
+from __future__ import annotations
+
+DEFAULT_ENCODER = "bundled:features-tactile"
+
+
+def add_encoder_argument(parser) -> None:
+    parser.add_argument("--encoder", default=None,
+                        help="feature encoder: bundled:NAME or a checkpoint path; default: the features "
+                             f"stored in the maps, else {DEFAULT_ENCODER}")
+
+
+def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool = True):
+    """The maps at ``paths`` with features from ``encoder_name`` (or those they store).
+
+    Returns:
+        (maps, encoder): the encoder actually used (None when every map kept its stored features).
+    """
+    from tactojax.features import encode_images
+    from tactojax.io import load_tactile_map, resolve_encoder
+
+    maps = [load_tactile_map(path) for path in paths]
+    names = [m.object_id for m in maps]
+    if len(set(names)) != len(names):
+        raise ValueError(f"two maps of the same object: {names}")
+    stored = all(m.features.shape[1] > 0 for m in maps) and len({m.features.shape[1] for m in maps}) == 1
+    if encoder_name is None and stored:
+        return maps, None
+    encoder = resolve_encoder(encoder_name or DEFAULT_ENCODER)
+    maps = [m.with_features(encode_images(encoder, m.images, progress=progress)) for m in maps]
+    return maps, encoder
+
+
+def object_symmetries(object_id: str):
+    """The catalog object's symmetry group (SE3 batch), or None for objects outside the catalog."""
+    from tactojax.objects import CATALOG, get_object
+
+    if object_id not in CATALOG:
+        return None
+    return get_object(object_id).symmetry.transforms()

@@ -1,0 +1,316 @@
+"""Contrastive training of a tactile feature encoder: touches at nearby poses look alike.
+
+The paper retrieves imprints with ImageNet features (section VI, CTI). Here a small ResNet is
+trained on tactile imprints themselves with a multi-positive InfoNCE loss (SupCon, Khosla et
+al. 2020; NT-Xent of SimCLR when every anchor has only its partner): the positives of a touch
+are the touches of the *same object* whose sensor poses are within ``positive_mm`` and
+``positive_deg`` of its own, up to the object's symmetries (:class:`PoseNeighbours`), so the
+features learn what CTI needs, "where on this object was I touched", and not just "which
+object". Every anchor comes with one partner, a random pose neighbour (or, when it has none or
+with probability ``same_imprint_fraction``, another augmented view of the same imprint).
+Batches hold ``objects_per_batch`` objects, so most negatives are other places on the same
+object, the ones retrieval must tell apart. The network sees the image minus the sensor's
+no-contact frame (:class:`~tactojax.features._encoder.Encoder`), with colour, noise and shift
+augmentation.
+
+Seeded and deterministic: the batch of step ``s`` depends only on ``(seed, s)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
+from tqdm.auto import tqdm
+
+from tactojax.features._encoder import (
+    Encoder, as_unit_range, encode_images, init_encoder, network_input, normalize_features, resize_image,
+)
+from tactojax.features._touches import TouchData, object_pose_distances, retrieval_accuracy
+from tactojax.sensor import augment_colors
+
+
+@dataclasses.dataclass(frozen=True)
+class ContrastiveConfig:
+    """Settings of :func:`train_encoder` (defaults: the shipped ``features-tactile`` encoder)."""
+
+    preset: str = "resnet_tactile"
+    input_size: tuple[int, int] = (60, 80)
+    """(h, w) network input, pixels (images are resized once, before training)."""
+    steps: int = 1500
+    batch_size: int = 32
+    """Anchors per step; the network sees twice as many views (anchor and partner)."""
+    objects_per_batch: int = 2
+    learning_rate: float = 2e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 100
+    temperature: float = 0.1
+    positive_mm: float = 12.0
+    positive_deg: float = 30.0
+    """Pose neighbours within these (object frame) are positives: as the retrieval metric's
+    neighbours, the next grasps of a 10 mm grid and the next yaw (20 deg) at the same place."""
+    symmetric: bool = True
+    """Compare poses up to the objects' symmetries (identical imprints are not negatives)."""
+    same_imprint_fraction: float = 0.25
+    color_gain: float = 0.05
+    """Colour augmentation: per-channel gain in 1 +- this, offset in +- 0.4 of it, log-gamma in +- it."""
+    noise_std: float = 0.01
+    """Gaussian camera noise added to views, [0, 1] units."""
+    max_shift_px: int = 2
+    """Random translation of views by up to this many input pixels."""
+    seed: int = 0
+    eval_every: int = 500
+    """Validation retrieval every this many steps (0: only at the end)."""
+
+
+@struct.dataclass
+class ContrastiveState:
+    """What training carries from step to step."""
+
+    encoder: Encoder
+    opt_state: Any
+    step: Array
+
+
+def make_optimizer(config: ContrastiveConfig) -> optax.GradientTransformation:
+    """AdamW with linear warm-up and cosine decay to 1 % of the peak rate."""
+    warmup = min(config.warmup_steps, max(config.steps // 4, 1))
+    schedule = optax.warmup_cosine_decay_schedule(
+        0.0, config.learning_rate, warmup, max(config.steps, warmup + 1), end_value=0.01 * config.learning_rate)
+    return optax.chain(optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=config.weight_decay))
+
+
+def contrastive_loss(
+    features: Float[Array, "B F"], positives: Bool[Array, "B B"], temperature: float
+) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """Multi-positive InfoNCE over a batch of unit features, and the batch's top-1 accuracy.
+
+    ``loss_i = -mean_{p in P(i)} log softmax_{j != i}(f_i . f_j / temperature)_p`` with
+    ``P(i)`` the positives of view i other than itself; averaged over views that have one.
+    The accuracy is the fraction of those views whose most similar other view is a positive.
+    """
+    count = features.shape[0]
+    off_diagonal = ~jnp.eye(count, dtype=bool)
+    logits = jnp.where(off_diagonal, features @ features.T / temperature, -1e9)
+    log_prob = logits - jax.nn.logsumexp(logits, axis=1, keepdims=True)
+    positives = positives & off_diagonal
+    number = jnp.sum(positives, axis=1)
+    has = number > 0
+    per_view = -jnp.sum(jnp.where(positives, log_prob, 0.0), axis=1) / jnp.maximum(number, 1)
+    weight = has / jnp.maximum(jnp.sum(has), 1)
+    hit = jnp.take_along_axis(positives, jnp.argmax(logits, axis=1)[:, None], axis=1)[:, 0]
+    return jnp.sum(weight * per_view), jnp.sum(weight * hit)
+
+
+def augment_view(
+    key: PRNGKeyArray, encoder: Encoder, image: Float[Array, "h w 3"], config: ContrastiveConfig
+) -> Float[Array, "h w 3"]:
+    """One random view of an image already at the input size: lighting, noise, then shift.
+
+    An augmentation whose size in ``config`` is 0 is skipped (not traced at all).
+    """
+    color_key, noise_key, shift_key = jax.random.split(key, 3)
+    gain = config.color_gain
+    view = as_unit_range(image)
+    if gain > 0:
+        view = augment_colors(color_key, view, max_gain=gain, max_offset=0.4 * gain, max_gamma=gain)
+    if config.noise_std > 0:
+        view = view + config.noise_std * jax.random.normal(noise_key, view.shape)
+    x = network_input(encoder, view)
+    pad = config.max_shift_px
+    if pad == 0:
+        return x
+    shift = jax.random.randint(shift_key, (2,), 0, 2 * pad + 1)
+    padded = jnp.pad(x, ((pad, pad), (pad, pad), (0, 0)))
+    return jax.lax.dynamic_slice(padded, (shift[0], shift[1], 0), x.shape)
+
+
+def _augments(config: ContrastiveConfig) -> bool:
+    return config.color_gain > 0 or config.noise_std > 0 or config.max_shift_px > 0
+
+
+def batch_loss(params, state: ContrastiveState, batch: dict, config: ContrastiveConfig):
+    """(loss, (new batch statistics, top-1 accuracy)) of one batch of views, in train mode."""
+    encoder = state.encoder
+    if _augments(config):
+        keys = jax.random.split(batch["key"], batch["images"].shape[0])
+        views = jax.vmap(augment_view, in_axes=(0, None, 0, None))(keys, encoder, batch["images"], config)
+    else:
+        views = jax.vmap(network_input, in_axes=(None, 0))(encoder, batch["images"])
+    variables = {**encoder.variables, "params": params}
+    output, updates = encoder.module.apply(variables, views, train=True, mutable=["batch_stats"])
+    features = normalize_features(output)
+    loss, accuracy = contrastive_loss(features, batch["positives"], config.temperature)
+    return loss, (updates.get("batch_stats", {}), accuracy)
+
+
+def make_train_step(config: ContrastiveConfig):
+    """A jitted pure ``train_step(state, batch) -> (state, {"loss", "accuracy"})``.
+
+    ``batch``: ``{"images": (2B, h, w, 3) uint8 at the input size, "positives": (2B, 2B) bool
+    pose-neighbour mask of the views (:func:`batch_positives`), "key": PRNG key}``.
+    """
+    optimizer = make_optimizer(config)
+
+    @jax.jit
+    def train_step(state: ContrastiveState, batch: dict):
+        params = state.encoder.variables["params"]
+        (loss, (batch_stats, accuracy)), grads = jax.value_and_grad(batch_loss, has_aux=True)(
+            params, state, batch, config)
+        updates, opt_state = optimizer.update(grads, state.opt_state, params)
+        variables = {**state.encoder.variables, "params": optax.apply_updates(params, updates)}
+        if batch_stats:
+            variables["batch_stats"] = batch_stats
+        encoder = state.encoder.replace(variables=variables)
+        new_state = ContrastiveState(encoder=encoder, opt_state=opt_state, step=state.step + 1)
+        return new_state, {"loss": loss, "accuracy": accuracy}
+
+    return train_step
+
+
+class PoseNeighbours:
+    """Which touches of a :class:`TouchData` are pose neighbours of which (same object, up to
+    its symmetries): one (K_o, K_o) boolean matrix per object, computed once."""
+
+    def __init__(self, touches: TouchData, config: ContrastiveConfig):
+        self.object_index = touches.object_index
+        self.local = np.zeros(len(touches), np.int64)
+        self.matrices: dict[int, np.ndarray] = {}
+        cos_limit = math.cos(math.radians(config.positive_deg)) - 1e-6
+        for obj in np.unique(touches.object_index):
+            members = np.flatnonzero(touches.object_index == obj)
+            self.local[members] = np.arange(len(members))
+            distance, cos_angle = object_pose_distances(touches, members, members, symmetric=config.symmetric)
+            self.matrices[int(obj)] = (distance <= config.positive_mm) & (cos_angle >= cos_limit)
+        self.members = {obj: np.flatnonzero(touches.object_index == obj) for obj in self.matrices}
+
+    def of(self, index: int) -> np.ndarray:
+        """Indices of the pose neighbours of touch ``index``, itself excluded."""
+        obj = int(self.object_index[index])
+        near = self.members[obj][self.matrices[obj][self.local[index]]]
+        return near[near != index]
+
+    def mask(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), len(rows)) bool: which touches in ``rows`` are pose neighbours (diagonal True)."""
+        objects = self.object_index[rows]
+        result = objects[:, None] == objects[None, :]
+        for obj in np.unique(objects):
+            here = np.flatnonzero(objects == obj)
+            local = self.local[rows[here]]
+            result[np.ix_(here, here)] = self.matrices[int(obj)][np.ix_(local, local)]
+        return result
+
+
+def sample_pairs(
+    touches: TouchData, neighbours: PoseNeighbours, config: ContrastiveConfig, step: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(anchors, partners), (B,) indices each, of training step ``step`` (seeded by it)."""
+    rng = np.random.default_rng([config.seed, step])
+    objects = np.unique(touches.object_index)
+    chosen = rng.choice(objects, min(config.objects_per_batch, len(objects)), replace=False)
+    shares = np.diff(np.linspace(0, config.batch_size, len(chosen) + 1).round().astype(int))
+    anchors = []
+    for obj, share in zip(chosen, shares):
+        members = np.flatnonzero(touches.object_index == obj)
+        anchors.append(rng.choice(members, share, replace=share > len(members)))
+    anchors = np.concatenate(anchors)
+    partners = anchors.copy()
+    for i, anchor in enumerate(anchors):
+        near = neighbours.of(anchor)
+        if len(near) and rng.random() >= config.same_imprint_fraction:
+            partners[i] = near[rng.integers(len(near))]
+    return anchors, partners
+
+
+def resize_images(images: np.ndarray, size: tuple[int, int], *, batch_size: int = 256) -> np.ndarray:
+    """(K, H, W, 3) uint8 -> (K, h, w, 3) uint8 at ``size`` (antialiased bilinear)."""
+    resize = jax.jit(jax.vmap(lambda im: resize_image(as_unit_range(im), size)))
+    parts = [np.asarray(resize(images[i:i + batch_size])) for i in range(0, len(images), batch_size)]
+    return np.clip(np.round(np.concatenate(parts) * 255.0), 0, 255).astype(np.uint8)
+
+
+def estimate_background(images: np.ndarray, *, max_images: int = 512) -> np.ndarray:
+    """The no-contact frame, (H, W, 3) float32 in [0, 1]: the per-pixel median of the images
+    (each pixel is untouched in most imprints); a captured frame is better where available."""
+    step = max(1, len(images) // max_images)
+    return (np.median(images[::step], axis=0) / 255.0).astype(np.float32)
+
+
+def train_encoder(
+    touches: TouchData,
+    config: ContrastiveConfig = ContrastiveConfig(),
+    *,
+    background: np.ndarray | None = None,
+    held_out: np.ndarray | None = None,
+    progress: bool = True,
+) -> tuple[Encoder, list[dict]]:
+    """Train a tactile encoder with pose-neighbour positives (see the module docstring).
+
+    Args:
+        touches: training touches (several objects, poses in each object's frame).
+        config: settings.
+        background: (H, W, 3) no-contact frame in [0, 1] (default: estimated from the images).
+        held_out: (K,) bool, touches not trained on; they are the validation queries,
+            retrieved among all touches of their object (:func:`retrieval_accuracy`).
+        progress: show a progress bar with the loss.
+
+    Returns:
+        (the trained encoder, history): one dict per evaluation, ``{"step", "loss",
+        "batch_accuracy", and the validation metrics when held_out is given}``.
+    """
+    held_out = np.zeros(len(touches), bool) if held_out is None else np.asarray(held_out, bool)
+    if background is None:
+        background = estimate_background(touches.images)
+    small = resize_images(touches.images, config.input_size)
+    train = dataclasses.replace(touches.take(~held_out), images=small[~held_out])
+    if len(train) < 2:
+        raise ValueError(f"{len(train)} training touches: need at least 2")
+    neighbours = PoseNeighbours(train, config)
+    encoder = init_encoder(jax.random.key(config.seed), config.preset, config.input_size, background=background)
+    state = ContrastiveState(encoder=encoder, opt_state=make_optimizer(config).init(encoder.variables["params"]),
+                             step=jnp.zeros((), jnp.int32))
+    train_step = make_train_step(config)
+    base_key = jax.random.key(config.seed + 1)
+    history, losses, accuracies = [], [], []
+    bar = tqdm(total=config.steps, desc=f"train {config.preset}", unit="step", disable=not progress)
+    for step in range(config.steps):
+        anchors, partners = sample_pairs(train, neighbours, config, step)
+        rows = np.concatenate([anchors, partners])
+        batch = {"images": train.images[rows], "positives": neighbours.mask(rows),
+                 "key": jax.random.fold_in(base_key, step)}
+        state, metrics = train_step(state, batch)
+        losses.append(metrics["loss"])
+        accuracies.append(metrics["accuracy"])
+        bar.update(1)
+        last = step + 1 == config.steps
+        if (step + 1) % 20 == 0 or last:
+            bar.set_postfix(loss=f"{float(np.mean(losses[-20:])):.3f}", acc=f"{float(np.mean(accuracies[-20:])):.2f}")
+        if last or (config.eval_every and (step + 1) % config.eval_every == 0):
+            entry = {"step": step + 1, "loss": float(np.mean(losses[-50:])),
+                     "batch_accuracy": float(np.mean(accuracies[-50:]))}
+            if held_out.any():
+                features = encode_images(state.encoder, small)
+                result = retrieval_accuracy(features, touches, queries=held_out, symmetric=config.symmetric)
+                entry.update({k: v for k, v in result.items() if k != "per_query"})
+                bar.write(f"step {step + 1}: held-out top-1 pose-neighbour rate {entry['top1_rate']:.3f}, "
+                          f"median top-1 distance {entry['median_top1_mm']:.1f} mm")
+            history.append(entry)
+    bar.close()
+    return state.encoder, history
+
+
+def split_held_out(touches: TouchData, fraction: float, *, seed: int = 0) -> np.ndarray:
+    """(K,) bool: a random ``fraction`` of each object's touches, held out for validation."""
+    rng = np.random.default_rng(seed)
+    held_out = np.zeros(len(touches), bool)
+    for obj in np.unique(touches.object_index):
+        members = np.flatnonzero(touches.object_index == obj)
+        held_out[rng.choice(members, int(round(fraction * len(members))), replace=False)] = True
+    return held_out

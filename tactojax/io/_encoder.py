@@ -1,0 +1,174 @@
+"""Feature encoders on disk, and touches with poses read from grasp datasets.
+
+Checkpoint format (``.msgpack``, no pickle, written atomically): a msgpack map
+``{"format": "tactojax-feature-encoder", "version": 1, "architecture": str, "input_size":
+[h, w], "mean": [3], "std": [3], "feature_dim": int, "background": (h, w, 3) float32 or an
+empty array for none, "variables": nested map of float32 arrays (flax state dict),
+"metadata": JSON string}``. The architecture must be a key of
+``tactojax.features.ARCHITECTURES``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import serialization
+
+from tactojax.features._encoder import ARCHITECTURES, Encoder, build_encoder
+from tactojax.features._touches import TouchData
+from tactojax.geometry import sensor_pose
+from tactojax.io._atomic import atomic_write_bytes
+from tactojax.io._dataset import open_dataset
+from tactojax.io._map import read_grasps
+from tactojax.io._shape import BUNDLED_DIR, CorruptCheckpointError
+
+ENCODER_FORMAT = "tactojax-feature-encoder"
+ENCODER_VERSION = 1
+BUNDLED_PREFIX = "features-"
+"""Shipped encoders are ``tactojax/checkpoints/features-*.msgpack``."""
+
+
+def save_encoder(path, encoder: Encoder, *, metadata: dict | None = None) -> Path:
+    """Write an encoder checkpoint atomically (see the module docstring for the format).
+
+    Args:
+        path: destination ``.msgpack`` file.
+        encoder: the encoder; its architecture must be registered to be loaded back.
+        metadata: JSON-serialisable notes (training data, settings, metrics).
+    """
+    background = np.zeros((0,), np.float32) if encoder.background is None else encoder.background
+    payload = {
+        "format": ENCODER_FORMAT, "version": ENCODER_VERSION, "architecture": encoder.architecture,
+        "input_size": list(encoder.input_size), "mean": list(encoder.mean), "std": list(encoder.std),
+        "feature_dim": encoder.feature_dim, "background": np.asarray(background, np.float32),
+        "variables": serialization.to_state_dict(jax.device_get(encoder.variables)),
+        "metadata": json.dumps(metadata or {}),
+    }
+    path = Path(path)
+    atomic_write_bytes(path, serialization.msgpack_serialize(payload))
+    return path
+
+
+def _read(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no encoder checkpoint at {path}")
+    try:
+        payload = serialization.msgpack_restore(path.read_bytes())
+    except Exception as error:  # msgpack raises several unrelated types
+        raise CorruptCheckpointError(f"{path} is not a readable encoder checkpoint ({error})") from None
+    if not isinstance(payload, dict) or payload.get("format") != ENCODER_FORMAT:
+        raise CorruptCheckpointError(f"{path} is not a {ENCODER_FORMAT} file")
+    if payload.get("version") != ENCODER_VERSION:
+        raise CorruptCheckpointError(f"{path}: unsupported encoder version {payload.get('version')}")
+    return payload
+
+
+def load_encoder(path) -> Encoder:
+    """Read an encoder written by :func:`save_encoder`; weights are checked against the
+    architecture's shapes."""
+    payload = _read(path)
+    try:
+        architecture = str(payload["architecture"])
+        if architecture not in ARCHITECTURES:
+            raise ValueError(f"unknown architecture {architecture!r} (have {sorted(ARCHITECTURES)})")
+        module = ARCHITECTURES[architecture]()
+        height, width = (int(s) for s in payload["input_size"])
+        template = jax.eval_shape(module.init, jax.random.key(0), jnp.zeros((1, height, width, 3), jnp.float32))
+        variables = serialization.from_state_dict(template, payload["variables"])
+        if jax.tree.structure(variables) != jax.tree.structure(template) or \
+                jax.tree.map(np.shape, variables) != jax.tree.map(lambda t: t.shape, template):
+            raise ValueError("weight shapes do not match the architecture")
+        variables = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables)
+        background = np.asarray(payload["background"], np.float32)
+        if background.size and background.shape != (height, width, 3):
+            raise ValueError(f"background of shape {background.shape}, expected {(height, width, 3)}")
+        encoder = build_encoder(module, variables, architecture=architecture, input_size=(height, width),
+                                mean=tuple(payload["mean"]), std=tuple(payload["std"]),
+                                background=background if background.size else None)
+        if encoder.feature_dim != int(payload["feature_dim"]):
+            raise ValueError(f"feature dimension {encoder.feature_dim}, header says {payload['feature_dim']}")
+    except (KeyError, ValueError, TypeError) as error:
+        raise CorruptCheckpointError(f"{path}: malformed encoder checkpoint ({error})") from None
+    return encoder
+
+
+def encoder_metadata(path) -> dict:
+    """The metadata dict saved with an encoder checkpoint."""
+    return json.loads(_read(path).get("metadata", "{}"))
+
+
+def bundled_encoders() -> list[str]:
+    """Names of the encoders shipped with the package (``bundled:NAME``)."""
+    return sorted(p.stem for p in BUNDLED_DIR.glob(f"{BUNDLED_PREFIX}*.msgpack"))
+
+
+def resolve_encoder(name_or_path) -> Encoder:
+    """Load ``bundled:NAME`` (a shipped encoder, e.g. ``bundled:features-tactile``) or a path."""
+    text = str(name_or_path)
+    if text.startswith("bundled:"):
+        name = text.removeprefix("bundled:")
+        path = BUNDLED_DIR / f"{name}.msgpack"
+        if not name.startswith(BUNDLED_PREFIX) or not path.is_file():
+            raise FileNotFoundError(f"no bundled encoder {name!r}; have {bundled_encoders()}")
+        return load_encoder(path)
+    return load_encoder(text)
+
+
+def catalog_symmetry(object_id: str) -> np.ndarray:
+    """(S, 4, 4) symmetry transforms of a catalog object, or just the identity for others."""
+    from tactojax.objects import CATALOG, get_object
+
+    if object_id not in CATALOG:
+        return np.eye(4, dtype=np.float32)[None]
+    return np.asarray(get_object(object_id).symmetry.transforms().as_matrix(), np.float32)
+
+
+def load_touches(paths, *, objects: list[str] | None = None, symmetries: bool = True) -> TouchData:
+    """Every imprint of grasp datasets with its sensor pose in its object's frame.
+
+    Args:
+        paths: dataset directories (mapping protocol or recordings with ``T_world_object``;
+            without it the object is taken as fixed in the world).
+        objects: keep only these object ids (default all).
+        symmetries: attach the symmetry group of catalog objects (by object id; others get
+            none), so that retrieval and training compare poses up to symmetry.
+
+    Returns:
+        The touches; an object appearing in several datasets is one object (same frame).
+    """
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not paths:
+        raise ValueError("no dataset given")
+    names: list[str] = []
+    parts = []
+    shapes = set()
+    for path in paths:
+        ids = sorted(set(open_dataset(path).read(["object_id"])["object_id"].astype(str).tolist()))
+        for object_id in ids:
+            if objects is not None and object_id not in objects:
+                continue
+            grasps = read_grasps(path, object_id=object_id)
+            T_world_sensor = sensor_pose(grasps["T_world_gripper"], grasps["openings"])
+            T_object_sensor = (T_world_sensor if grasps["T_world_object"] is None
+                               else grasps["T_world_object"].inverse() @ T_world_sensor)
+            if object_id not in names:
+                names.append(str(object_id))
+            shapes.add(grasps["images"].shape[1:])
+            parts.append((grasps["images"], names.index(object_id), np.asarray(T_object_sensor.translation()),
+                          np.asarray(T_object_sensor.rotation().as_matrix()), np.asarray(grasps["openings"])))
+    if not parts:
+        raise ValueError(f"no touches of objects {objects} in {[str(p) for p in paths]}")
+    if len(shapes) > 1:
+        raise ValueError(f"datasets mix image sizes: {sorted(shapes)}")
+    return TouchData(
+        images=np.concatenate([p[0] for p in parts]),
+        object_index=np.concatenate([np.full(len(p[0]), p[1], np.int32) for p in parts]),
+        positions=np.concatenate([p[2] for p in parts]).astype(np.float32),
+        rotations=np.concatenate([p[3] for p in parts]).astype(np.float32),
+        openings=np.concatenate([p[4] for p in parts]).astype(np.float32), objects=tuple(names),
+        symmetries=tuple(catalog_symmetry(name) for name in names) if symmetries else ())

@@ -1,0 +1,105 @@
+"""Tactile localization (paper section VI) and identification (section VII). Pure JAX.
+
+A query imprint (predicted heightmap, mask, features, opening) is matched to an object's
+tactile map: retrieval of the most similar stored imprints (CTI), then point-to-plane ICP
+against them, with correspondences found by projecting into the stored heightmaps. Methods:
+``random``, ``cti``, ``cti-icp-N`` (the paper's), ``cti-icp-multistart-N`` and
+``cti-search-N`` (ours: hypotheses around the retrieved imprints, checked for consistency with
+what the sensors felt, refined by ICP).
+"""
+
+from tactojax.localize._consistency import Consistency as Consistency
+from tactojax.localize._consistency import consistency as consistency
+from tactojax.localize._correspondences import Correspondences as Correspondences
+from tactojax.localize._correspondences import find_correspondences as find_correspondences
+from tactojax.localize._correspondences import nearest_correspondences as nearest_correspondences
+from tactojax.localize._correspondences import surface_lookup as surface_lookup
+from tactojax.localize._evaluate import HISTOGRAM_EDGES_MM as HISTOGRAM_EDGES_MM
+from tactojax.localize._evaluate import MAP_FRACTIONS as MAP_FRACTIONS
+from tactojax.localize._evaluate import LocalizationErrors as LocalizationErrors
+from tactojax.localize._evaluate import cloud_rmse as cloud_rmse
+from tactojax.localize._evaluate import evaluate_localization as evaluate_localization
+from tactojax.localize._evaluate import map_size_study as map_size_study
+from tactojax.localize._evaluate import oracle_imprints as oracle_imprints
+from tactojax.localize._evaluate import pose_errors as pose_errors
+from tactojax.localize._icp import ASSOCIATIONS as ASSOCIATIONS
+from tactojax.localize._icp import ROBUST_LOSSES as ROBUST_LOSSES
+from tactojax.localize._icp import IcpSettings as IcpSettings
+from tactojax.localize._icp import fit_quality as fit_quality
+from tactojax.localize._icp import icp as icp
+from tactojax.localize._icp import robust_weights as robust_weights
+from tactojax.localize._identify import IdentificationResult as IdentificationResult
+from tactojax.localize._identify import MapLibrary as MapLibrary
+from tactojax.localize._identify import evaluate_identification as evaluate_identification
+from tactojax.localize._identify import identify as identify
+from tactojax.localize._map import LocalizationMap as LocalizationMap
+from tactojax.localize._map import Query as Query
+from tactojax.localize._map import map_query as map_query
+from tactojax.localize._methods import PAPER_METHODS as PAPER_METHODS
+from tactojax.localize._methods import POINTS_PER_QUERY as POINTS_PER_QUERY
+from tactojax.localize._methods import Method as Method
+from tactojax.localize._methods import estimate_pose as estimate_pose
+from tactojax.localize._methods import localize as localize
+from tactojax.localize._methods import localize_query as localize_query
+from tactojax.localize._methods import parse_method as parse_method
+from tactojax.localize._methods import query_points as query_points
+from tactojax.localize._pose import PoseEstimate as PoseEstimate
+from tactojax.localize._register import register_multistart as register_multistart
+from tactojax.localize._register import selection_cost as selection_cost
+from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM as MAX_OPENING_DIFFERENCE_MM
+from tactojax.localize._retrieval import closest_imprints as closest_imprints
+from tactojax.localize._retrieval import cosine_similarities as cosine_similarities
+from tactojax.localize._retrieval import rank_imprints as rank_imprints
+from tactojax.localize._search import SearchSettings as SearchSettings
+from tactojax.localize._search import search_and_register as search_and_register
+from tactojax.localize._solvers import SOLVERS as SOLVERS
+from tactojax.localize._solvers import pose_step as pose_step
+
+__all__ = [
+    "ASSOCIATIONS",
+    "HISTOGRAM_EDGES_MM",
+    "MAP_FRACTIONS",
+    "MAX_OPENING_DIFFERENCE_MM",
+    "PAPER_METHODS",
+    "POINTS_PER_QUERY",
+    "ROBUST_LOSSES",
+    "SOLVERS",
+    "Consistency",
+    "Correspondences",
+    "IcpSettings",
+    "IdentificationResult",
+    "LocalizationErrors",
+    "LocalizationMap",
+    "MapLibrary",
+    "Method",
+    "PoseEstimate",
+    "Query",
+    "SearchSettings",
+    "closest_imprints",
+    "cloud_rmse",
+    "consistency",
+    "cosine_similarities",
+    "estimate_pose",
+    "evaluate_identification",
+    "evaluate_localization",
+    "find_correspondences",
+    "fit_quality",
+    "icp",
+    "identify",
+    "localize",
+    "localize_query",
+    "map_query",
+    "nearest_correspondences",
+    "map_size_study",
+    "oracle_imprints",
+    "parse_method",
+    "pose_errors",
+    "pose_step",
+    "query_points",
+    "rank_imprints",
+    "register_multistart",
+    "robust_weights",
+    "search_and_register",
+    "selection_cost",
+    "surface_lookup",
+]

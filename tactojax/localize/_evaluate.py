@@ -1,0 +1,287 @@
+"""Leave-one-out evaluation of localization on a map (paper section VI, Table III, Fig. 7).
+
+Each valid imprint in turn is the query; the map without it (``exclude``) is searched. The
+error of an estimate is the RMSE between the held-out imprint's stored cloud at its true and
+at its estimated pose (the paper's metric), plus translation and rotation errors of the
+sensor pose and, given the object's symmetries, the symmetry-aware RMSE. Queries run vmapped
+in fixed-size chunks, so each method compiles once per map size.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import asdict, dataclass, field
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from tqdm.auto import tqdm
+
+from tactojax.localize._icp import IcpSettings
+from tactojax.localize._map import LocalizationMap, map_query
+from tactojax.localize._methods import (PAPER_METHODS, POINTS_PER_QUERY, Method, estimate_pose, localize_query,
+                                        parse_method, query_points)
+from tactojax.localize._pose import PoseEstimate
+from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
+from tactojax.localize._search import SearchSettings
+from tactojax.mapping import TactileMap
+
+HISTOGRAM_EDGES_MM = tuple(float(x) for x in np.arange(0.0, 85.0, 5.0))
+"""RMSE histogram bins, mm (the paper's histograms span 0-80 mm); larger errors overflow."""
+
+MAP_FRACTIONS = (0.1, 0.25, 0.5, 0.75, 1.0)
+"""Map sizes of the paper's Fig. 7 (fractions of the touches)."""
+
+
+def cloud_rmse(
+    points: Float[Array, "P 3"], valid: Bool[Array, "P"], T_a: jaxlie.SE3, T_b: jaxlie.SE3
+) -> Float[Array, ""]:
+    """RMSE (mm) between a cloud placed by ``T_a`` and by ``T_b`` (the paper's metric)."""
+    squared = jnp.sum((T_a @ points - T_b @ points) ** 2, axis=-1)
+    return jnp.sqrt(jnp.sum(jnp.where(valid, squared, 0.0)) / jnp.maximum(jnp.sum(valid), 1))
+
+
+def pose_errors(
+    points: Float[Array, "P 3"],
+    valid: Bool[Array, "P"],
+    T_true: jaxlie.SE3,
+    T_estimate: jaxlie.SE3,
+    symmetries: jaxlie.SE3 | None = None,
+) -> dict[str, Float[Array, ""]]:
+    """RMSE (mm), translation (mm) and rotation (deg) errors of one estimate.
+
+    Args:
+        points, valid: (P, 3) the held-out imprint's cloud, sensor frame, mm, and its mask.
+        T_true, T_estimate: true and estimated sensor poses in the object frame.
+        symmetries: optional (S,) object-frame transforms mapping the object onto itself; the
+            symmetry-aware RMSE is ``min_s RMSE(T_true p, S_s T_estimate p)``.
+
+    Returns:
+        ``{"rmse", "translation", "rotation", "symmetric_rmse"}`` (the last equals ``rmse``
+        without symmetries).
+    """
+    rmse = cloud_rmse(points, valid, T_true, T_estimate)
+    difference = T_true.inverse() @ T_estimate
+    rotation = jnp.rad2deg(jnp.linalg.norm(difference.rotation().log()))
+    translation = jnp.linalg.norm(T_true.translation() - T_estimate.translation())
+    symmetric = rmse
+    if symmetries is not None:
+        per_symmetry = jax.vmap(lambda S: cloud_rmse(points, valid, T_true, S @ T_estimate))(symmetries)
+        symmetric = jnp.minimum(rmse, jnp.min(per_symmetry))
+    return {"rmse": rmse, "translation": translation, "rotation": rotation, "symmetric_rmse": symmetric}
+
+
+def oracle_imprints(
+    view: LocalizationMap,
+    points: Float[Array, "P 3"],
+    valid: Bool[Array, "P"],
+    T_true: jaxlie.SE3,
+    opening: Float[Array, ""],
+    n: int,
+    *,
+    exclude: int | Int[Array, ""] = -1,
+    max_opening_difference_mm: float | Float[Array, ""] = MAX_OPENING_DIFFERENCE_MM,
+) -> tuple[Int[Array, "n"], Bool[Array, "n"]]:
+    """The n map imprints whose poses are truly nearest (cloud RMSE) to a query's true pose.
+
+    A diagnostic ("oracle retrieval"): registration started from these separates the errors of
+    retrieval from those of registration. The same opening filter as CTI applies.
+    """
+    # RMSE of the cloud under every stored pose from its first two moments (exact, O(K)):
+    # mean |A p + b|^2 = tr(A M A^T) + 2 b^T A mu + |b|^2, A = R_true - R_k, b = t_true - t_k.
+    count = jnp.maximum(jnp.sum(valid), 1)
+    mean = jnp.sum(jnp.where(valid[:, None], points, 0.0), axis=0) / count
+    second = jnp.einsum("pi,pj->ij", jnp.where(valid[:, None], points, 0.0), points) / count
+    A = T_true.rotation().as_matrix()[None] - view.T_object_sensor.rotation().as_matrix()
+    b = T_true.translation()[None] - view.T_object_sensor.translation()
+    squared = (jnp.einsum("kij,jl,kil->k", A, second, A) + 2.0 * jnp.einsum("ki,kij,j->k", b, A, mean)
+               + jnp.sum(b**2, axis=-1))
+    errors = jnp.sqrt(jnp.maximum(squared, 0.0))
+    index = jnp.arange(len(view))
+    eligible = view.imprint_valid & (jnp.abs(view.openings - opening) < max_opening_difference_mm) & (index != exclude)
+    _, indices = jax.lax.top_k(jnp.where(eligible, -errors, -jnp.inf), n)
+    return indices, eligible[indices]
+
+
+@functools.partial(jax.jit, static_argnames=("method", "settings", "search", "points_per_query", "oracle"))
+def _evaluate_chunk(keys, view, queries, exclude, clouds, cloud_valid, T_true, symmetries,
+                    max_opening_difference_mm, method, settings, search, points_per_query, oracle):
+    def one(key, query, exclude, cloud, valid, T):
+        if oracle and method.kind != "random":
+            indices, indices_valid = oracle_imprints(
+                view, cloud, valid, T, query.opening, max(method.n, 1), exclude=exclude,
+                max_opening_difference_mm=max_opening_difference_mm)
+            points, points_valid = query_points(query, view.mm_per_px, points_per_query)
+            estimate = estimate_pose(view, query, points, points_valid, indices, indices_valid, method,
+                                     settings=settings, search=search, exclude=exclude)
+        else:
+            estimate = localize_query(key, view, query, method, settings=settings, search=search,
+                                      points_per_query=points_per_query,
+                                      max_opening_difference_mm=max_opening_difference_mm, exclude=exclude)
+        return estimate, pose_errors(cloud, valid, T, estimate.T_object_sensor, symmetries)
+
+    return jax.vmap(one)(keys, queries, exclude, clouds, cloud_valid, T_true)
+
+
+@dataclass
+class LocalizationErrors:
+    """Per-query errors of one method on one map, and their summary."""
+
+    method: str
+    queries: np.ndarray
+    """(Q,) indices of the query imprints in the map."""
+    rmse: np.ndarray
+    """(Q,) cloud RMSE, mm."""
+    translation: np.ndarray
+    """(Q,) sensor translation error, mm."""
+    rotation: np.ndarray
+    """(Q,) sensor rotation error, degrees."""
+    symmetric_rmse: np.ndarray
+    """(Q,) symmetry-aware cloud RMSE, mm (= rmse without symmetries)."""
+    converged: np.ndarray
+    score: np.ndarray
+    overlap: np.ndarray
+    iterations: np.ndarray
+    imprint_index: np.ndarray
+    """(Q,) the map imprint each estimate started from (-1: none)."""
+    histogram_edges_mm: tuple[float, ...] = field(default=HISTOGRAM_EDGES_MM)
+
+    def histogram(self, values: np.ndarray | None = None) -> list[int]:
+        """Counts of the RMSEs in the bins, plus one last count for everything beyond."""
+        values = self.rmse if values is None else values
+        edges = np.asarray(self.histogram_edges_mm)
+        counts, _ = np.histogram(np.clip(values, edges[0], None), bins=np.append(edges, np.inf))
+        return counts.tolist()
+
+    def summary(self) -> dict:
+        """JSON-ready summary: medians, means, fractions under 2/5/10 mm, histogram."""
+        def stats(x):
+            return {"median": float(np.median(x)), "mean": float(np.mean(x)),
+                    "p25": float(np.percentile(x, 25)), "p75": float(np.percentile(x, 75))}
+        return {
+            "method": self.method, "queries": int(len(self.rmse)),
+            "rmse_mm": stats(self.rmse), "symmetric_rmse_mm": stats(self.symmetric_rmse),
+            "translation_mm": stats(self.translation), "rotation_deg": stats(self.rotation),
+            "within_mm": {str(t): float(np.mean(self.rmse <= t)) for t in (1, 2, 5, 10)},
+            "converged": float(np.mean(self.converged)),
+            "histogram": {"edges_mm": list(self.histogram_edges_mm), "counts": self.histogram(),
+                          "symmetric_counts": self.histogram(self.symmetric_rmse)},
+        }
+
+    def to_dict(self) -> dict:
+        """Everything (per-query arrays as lists) for JSON."""
+        return {name: (value.tolist() if isinstance(value, np.ndarray) else value)
+                for name, value in asdict(self).items()}
+
+
+def evaluate_localization(
+    key: PRNGKeyArray,
+    tactile_map: TactileMap,
+    methods=PAPER_METHODS,
+    *,
+    settings: IcpSettings = IcpSettings(),
+    search: SearchSettings = SearchSettings(),
+    points_per_query: int = POINTS_PER_QUERY,
+    symmetries: jaxlie.SE3 | None = None,
+    queries=None,
+    map_valid=None,
+    oracle: bool = False,
+    max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM,
+    chunk_size: int = 32,
+    progress: bool = False,
+) -> dict[str, LocalizationErrors]:
+    """Leave-one-out localization errors of several methods on one map (paper Table III).
+
+    Args:
+        key: PRNG key.
+        tactile_map: the map, with features.
+        methods: method names (see :func:`~tactojax.localize.localize`).
+        settings: ICP parameters.
+        search: search parameters (``cti-search-N``).
+        points_per_query: query points for ICP.
+        symmetries: optional (S,) object-frame symmetry transforms (symmetry-aware RMSE).
+        queries: indices of the imprints to query (default: every valid imprint).
+        map_valid: (K,) optional mask of the imprints that form the map (map-size study);
+            queried imprints are excluded from the map in any case.
+        oracle: retrieve the imprints truly nearest to each query instead of the most similar
+            (a diagnostic that separates retrieval from registration errors).
+        max_opening_difference_mm: CTI's opening filter, mm.
+        chunk_size: queries per vmapped batch (fixed: one compilation).
+        progress: show a progress bar.
+
+    Returns:
+        ``{method name: LocalizationErrors}``.
+    """
+    view = LocalizationMap.from_tactile_map(tactile_map)
+    if map_valid is not None:
+        view = view.with_imprint_valid(jnp.asarray(map_valid, bool))
+    if queries is None:
+        queries = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+    queries = np.asarray(queries, np.int64)
+    if len(queries) == 0:
+        raise ValueError("no query imprints to evaluate")
+    symmetries = None if symmetries is None else jaxlie.SE3(jnp.asarray(symmetries.wxyz_xyz, jnp.float32).reshape(-1, 7))
+    count = len(queries)
+    padded = np.concatenate([queries, np.repeat(queries[-1:], -count % chunk_size)])
+    results = {}
+    for name in methods:
+        method = parse_method(name)
+        outputs = []
+        bar = tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", disable=not progress)
+        for start in range(0, len(padded), chunk_size):
+            index = jnp.asarray(padded[start:start + chunk_size], jnp.int32)
+            keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
+            T_true = jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor)
+            estimate, errors = _evaluate_chunk(
+                keys, view, jax.vmap(lambda i: map_query(view, i))(index), index,
+                tactile_map.points[index], tactile_map.valid[index], T_true, symmetries,
+                jnp.float32(max_opening_difference_mm), method, settings, search, points_per_query, oracle)
+            outputs.append(jax.device_get((estimate, errors)))
+            bar.update(min(chunk_size, count - start))
+        bar.close()
+        estimate = jax.tree.map(lambda *x: np.concatenate(x)[:count], *[o[0] for o in outputs])
+        errors = jax.tree.map(lambda *x: np.concatenate(x)[:count], *[o[1] for o in outputs])
+        results[method.name] = LocalizationErrors(
+            method=method.name, queries=queries, rmse=errors["rmse"], translation=errors["translation"],
+            rotation=errors["rotation"], symmetric_rmse=errors["symmetric_rmse"],
+            converged=estimate.converged, score=estimate.score, overlap=estimate.overlap,
+            iterations=estimate.iterations, imprint_index=estimate.imprint_index)
+    return results
+
+
+def map_size_study(
+    key: PRNGKeyArray,
+    tactile_map: TactileMap,
+    methods=("cti", "cti-icp-1", "cti-icp-5"),
+    *,
+    fractions=MAP_FRACTIONS,
+    max_queries: int | None = None,
+    **options,
+) -> dict[float, dict[str, LocalizationErrors]]:
+    """Errors against maps built from a random fraction of the touches (paper Fig. 7).
+
+    For a fraction f < 1, a random f of the valid imprints forms the map and the held-out
+    imprints are the queries (at most ``max_queries`` of them, drawn at random); f = 1 is
+    leave-one-out. The map keeps its shape (imprints are switched off), so nothing recompiles.
+
+    Returns:
+        ``{fraction: {method name: LocalizationErrors}}``.
+    """
+    valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+    results = {}
+    for fraction in fractions:
+        rng = np.random.default_rng(np.asarray(jax.random.key_data(jax.random.fold_in(key, int(fraction * 1000)))).ravel()[-1])
+        if fraction >= 1.0:
+            map_valid, queries = None, valid
+        else:
+            chosen = rng.choice(valid, size=max(1, int(round(fraction * len(valid)))), replace=False)
+            map_valid = np.zeros(len(tactile_map), bool)
+            map_valid[chosen] = True
+            queries = np.setdiff1d(valid, chosen)
+        if max_queries is not None and len(queries) > max_queries:
+            queries = np.sort(rng.choice(queries, size=max_queries, replace=False))
+        results[float(fraction)] = evaluate_localization(key, tactile_map, methods, queries=queries,
+                                                         map_valid=map_valid, **options)
+    return results

@@ -1,0 +1,94 @@
+"""Small synthetic tactile maps: analytic surfaces seen by a downward-looking sensor.
+
+The sensor frame's z axis points down onto a surface z = f(x, y) of the object frame, so pixel
+(x, y) sees the object point above (x, -y) (turned by the imprint's yaw) and the indentation
+is h = f - t_z wherever positive (a rigid press to the plane z = t_z). Every imprint of a map
+sees the same object regions in contact, so their heightmaps agree exactly where they overlap.
+"""
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+
+from tactojax.geometry import pixel_grid
+from tactojax.mapping import TactileMap, sample_contact_points
+
+HEIGHT_PX, WIDTH_PX, MM_PER_PX = 24, 32, 0.5
+PRESS_PLANE_MM = 0.2
+
+
+def bumps(x, y):
+    """A surface with features in every direction (all six pose dimensions are observable)."""
+    return (1.2 * np.sin(x / 3.5) * np.cos(y / 4.5) + 0.8 * np.exp(-((x - 3.0) ** 2 + (y + 2.0) ** 2) / 8.0)
+            + 0.6 * np.exp(-((x + 5.0) ** 2 + (y - 4.0) ** 2) / 5.0))
+
+
+def ridges(x, y):
+    """Another object: parallel ridges, for identification."""
+    return 1.0 + 0.9 * np.cos((x + 0.4 * y) / 1.8)
+
+
+def sensor_pose(x, y, yaw_deg=0.0, z=PRESS_PLANE_MM):
+    """Sensor looking down (its z = object -z) at (x, y), turned by yaw about the object z."""
+    yaw = np.deg2rad(yaw_deg)
+    rotation = jaxlie.SO3.from_z_radians(yaw) @ jaxlie.SO3.from_x_radians(np.pi)
+    return jaxlie.SE3.from_rotation_and_translation(rotation, jnp.array([x, y, z], jnp.float32))
+
+
+def render(surface, T_object_sensor):
+    """(heightmap, mask) of one press (numpy, float32)."""
+    xy = np.asarray(pixel_grid(HEIGHT_PX, WIDTH_PX, MM_PER_PX), np.float64)
+    p_sensor = np.concatenate([xy, np.zeros((HEIGHT_PX, WIDTH_PX, 1))], axis=-1)
+    matrix = np.asarray(T_object_sensor.as_matrix(), np.float64)
+    p_object = p_sensor @ matrix[:3, :3].T + matrix[:3, 3]
+    height = np.clip(surface(p_object[..., 0], p_object[..., 1]) - matrix[2, 3], 0.0, None)
+    return height.astype(np.float32), height > 0.02
+
+
+def make_map(surface, poses, object_id="synthetic", points=128, features=None):
+    """A TactileMap of presses at ``poses`` (list of SE3); features: the stand-in below."""
+    heightmaps, masks = zip(*(render(surface, T) for T in poses))
+    heightmaps, masks = jnp.asarray(np.stack(heightmaps)), jnp.asarray(np.stack(masks))
+    keys = jax.random.split(jax.random.key(0), len(poses))
+    sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
+    point_array, normals, valid = sample(keys, heightmaps, masks, MM_PER_PX, points)
+    T = jaxlie.SE3(jnp.stack([p.wxyz_xyz for p in poses]))
+    tactile_map = TactileMap(
+        images=jnp.zeros((len(poses), HEIGHT_PX, WIDTH_PX, 3), jnp.uint8), heightmaps=heightmaps, masks=masks,
+        points=point_array, normals=normals, valid=valid, T_object_sensor=T,
+        openings=jnp.full(len(poses), 20.0), features=jnp.zeros((len(poses), 0)),
+        imprint_valid=valid.any(axis=1), object_id=object_id, mm_per_px=MM_PER_PX)
+    return tactile_map.with_features(standin_features(heightmaps, masks) if features is None else features)
+
+
+def standin_features(heightmaps, masks):
+    """Mean-removed, L2-normalised 6 x 8 block means of the masked heightmaps."""
+    x = np.asarray(heightmaps) * np.asarray(masks)
+    x = x.reshape(len(x), 6, HEIGHT_PX // 6, 8, WIDTH_PX // 8).mean((2, 4)).reshape(len(x), -1)
+    x = x - x.mean(1, keepdims=True)
+    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+
+
+GRID = [(x, y) for y in (-6.0, -3.0, 0.0, 3.0, 6.0) for x in (-8.0, -4.0, 0.0, 4.0, 8.0)]
+
+
+@pytest.fixture(scope="session")
+def bumps_map():
+    """25 presses on a 4 x 3 mm grid over the bumps surface (16 x 12 mm field of view)."""
+    return make_map(bumps, [sensor_pose(x, y) for x, y in GRID], "bumps")
+
+
+@pytest.fixture(scope="session")
+def ridges_map():
+    return make_map(ridges, [sensor_pose(x, y, 10.0) for x, y in GRID], "ridges")
+
+
+@pytest.fixture(scope="session")
+def synthetic():
+    """The helpers above (test modules cannot import a conftest)."""
+    import types
+
+    return types.SimpleNamespace(bumps=bumps, ridges=ridges, render=render, sensor_pose=sensor_pose,
+                                 make_map=make_map, grid=GRID)

@@ -1,0 +1,83 @@
+"""Leave-one-out evaluation against a numpy reference; map-size study; oracle retrieval."""
+
+import jax
+import jaxlie
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tactojax.localize import closest_imprints
+from tactojax.localize._evaluate import evaluate_localization, map_size_study
+
+
+def _matrices(T):
+    wxyz_xyz = np.asarray(T.wxyz_xyz, np.float64).reshape(-1, 7)
+    matrix = np.zeros((len(wxyz_xyz), 4, 4))
+    matrix[:, :3, :3] = Rotation.from_quat(wxyz_xyz[:, [1, 2, 3, 0]]).as_matrix()
+    matrix[:, :3, 3], matrix[:, 3, 3] = wxyz_xyz[:, 4:], 1.0
+    return matrix
+
+
+def _rmse(points, a, b):
+    pa = points @ a[:3, :3].T + a[:3, 3]
+    pb = points @ b[:3, :3].T + b[:3, 3]
+    return np.sqrt(np.mean(np.sum((pa - pb) ** 2, axis=1)))
+
+
+FLIP = jaxlie.SE3.from_rotation(jaxlie.SO3.from_z_radians(np.pi))  # a (false) symmetry about z
+SYMMETRIES = jaxlie.SE3(np.stack([np.asarray(jaxlie.SE3.identity().wxyz_xyz), np.asarray(FLIP.wxyz_xyz)]))
+
+
+@pytest.fixture(scope="module")
+def cti_errors(bumps_map):
+    return evaluate_localization(jax.random.key(0), bumps_map, ["random", "cti"], symmetries=SYMMETRIES,
+                                 chunk_size=8), _matrices(FLIP)[0]
+
+
+def test_leave_one_out_cti_errors_match_numpy(bumps_map, cti_errors):
+    results, flip = cti_errors
+    errors = results["cti"]
+    matrices = _matrices(bumps_map.T_object_sensor)
+    features, openings, valid = bumps_map.features, bumps_map.openings, bumps_map.imprint_valid
+    assert errors.queries.tolist() == np.flatnonzero(np.asarray(valid)).tolist()
+    for q, k in enumerate(errors.queries):
+        j = int(closest_imprints(features, openings, valid, features[k], openings[k], 1, exclude=int(k))[0][0])
+        assert errors.imprint_index[q] == j
+        points = np.asarray(bumps_map.points[k], np.float64)[np.asarray(bumps_map.valid[k])]
+        np.testing.assert_allclose(errors.rmse[q], _rmse(points, matrices[k], matrices[j]), rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(errors.translation[q], np.linalg.norm(matrices[k][:3, 3] - matrices[j][:3, 3]),
+                                   rtol=1e-4, atol=1e-4)
+        angle = Rotation.from_matrix(matrices[k][:3, :3].T @ matrices[j][:3, :3]).magnitude()
+        np.testing.assert_allclose(errors.rotation[q], np.rad2deg(angle), atol=0.05)
+        symmetric = min(_rmse(points, matrices[k], matrices[j]), _rmse(points, matrices[k], flip @ matrices[j]))
+        np.testing.assert_allclose(errors.symmetric_rmse[q], symmetric, rtol=1e-4, atol=1e-4)
+
+
+def test_summary_and_histogram(cti_errors):
+    results, _ = cti_errors
+    for errors in results.values():
+        summary = errors.summary()
+        assert summary["queries"] == len(errors.rmse) == sum(summary["histogram"]["counts"])
+        assert summary["rmse_mm"]["median"] == pytest.approx(float(np.median(errors.rmse)))
+        assert len(summary["histogram"]["counts"]) == len(summary["histogram"]["edges_mm"])
+    assert np.median(results["cti"].rmse) < np.median(results["random"].rmse)
+
+
+def test_oracle_retrieval_is_the_truly_nearest_imprint(bumps_map, cti_errors):
+    results, _ = cti_errors
+    oracle = evaluate_localization(jax.random.key(0), bumps_map, ["cti"], oracle=True, chunk_size=8)["cti"]
+    assert np.all(oracle.rmse <= results["cti"].rmse + 1e-4)
+    matrices = _matrices(bumps_map.T_object_sensor)
+    for q, k in enumerate(oracle.queries[:5]):
+        points = np.asarray(bumps_map.points[k], np.float64)[np.asarray(bumps_map.valid[k])]
+        best = min(_rmse(points, matrices[k], matrices[j]) for j in range(len(matrices)) if j != k)
+        np.testing.assert_allclose(oracle.rmse[q], best, rtol=1e-4, atol=1e-4)
+
+
+def test_map_size_study_queries_only_held_out_imprints(bumps_map):
+    study = map_size_study(jax.random.key(1), bumps_map, ["cti"], fractions=(0.4, 1.0), chunk_size=8,
+                           symmetries=SYMMETRIES)  # the same compiled evaluation as above
+    part, full = study[0.4]["cti"], study[1.0]["cti"]
+    assert len(full.queries) == 25 and len(part.queries) == 15
+    in_map = np.setdiff1d(np.arange(25), part.queries)
+    assert np.isin(part.imprint_index, in_map).all()

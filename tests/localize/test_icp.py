@@ -1,0 +1,117 @@
+"""ICP: recovery of known perturbations, GN vs LM, vmap vs loop, failure modes, gradients."""
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from tactojax.localize import IcpSettings, LocalizationMap, Query, icp, query_points
+from tactojax.localize._evaluate import cloud_rmse
+
+CANDIDATES = jnp.array([6, 7, 8, 11, 12, 13, 16, 17])
+"""The map imprints around the object origin (the query lies among them)."""
+
+_icp = jax.jit(icp, static_argnums=6)
+"""One compilation per setting, shared by the tests."""
+SETTINGS = {solver: IcpSettings(iterations=30, solver=solver) for solver in ("gauss-newton", "levenberg-marquardt")}
+
+
+def _query(synthetic, T_true):
+    heightmap, mask = synthetic.render(synthetic.bumps, T_true)
+    return Query(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask), feature=jnp.zeros(48),
+                 opening=jnp.float32(20.0))
+
+
+def _perturb(T, translation, rotation_deg):
+    delta = jaxlie.SE3.from_rotation_and_translation(
+        jaxlie.SO3.exp(jnp.deg2rad(jnp.asarray(rotation_deg, jnp.float32))), jnp.asarray(translation, jnp.float32))
+    return delta @ T
+
+
+@pytest.fixture(scope="module")
+def problem(bumps_map, synthetic):
+    view = LocalizationMap.from_tactile_map(bumps_map)
+    T_true = synthetic.sensor_pose(1.3, -0.7, 5.0)  # between the map's presses
+    points, valid = query_points(_query(synthetic, T_true), view.mm_per_px, 128)
+    return view, T_true, points, valid
+
+
+@pytest.mark.parametrize("solver", ["gauss-newton", "levenberg-marquardt"])
+@pytest.mark.parametrize("translation, rotation_deg", [((1.5, -1.0, 0.4), (2.0, -1.5, 3.0)),
+                                                       ((-0.8, 1.2, -0.3), (-3.0, 2.0, -4.0))])
+def test_icp_recovers_a_known_perturbation(problem, solver, translation, rotation_deg):
+    view, T_true, points, valid = problem
+    start = _perturb(T_true, translation, rotation_deg)
+    estimate = _icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, SETTINGS[solver])
+    assert float(cloud_rmse(points, valid, T_true, start)) > 1.0
+    assert float(cloud_rmse(points, valid, T_true, estimate.T_object_sensor)) < 0.05
+    assert bool(estimate.converged) and float(estimate.overlap) > 0.9 and float(estimate.score) < 0.02
+    assert 1 < int(estimate.iterations) < 30
+
+
+def test_gauss_newton_and_levenberg_marquardt_agree(problem):
+    view, T_true, points, valid = problem
+    start = _perturb(T_true, (1.0, 0.5, -0.2), (1.0, 2.0, -2.0))
+    run = lambda solver: _icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, SETTINGS[solver])  # noqa: E731
+    gn, lm = run("gauss-newton"), run("levenberg-marquardt")
+    assert float(cloud_rmse(points, valid, gn.T_object_sensor, lm.T_object_sensor)) < 0.02
+
+
+def test_vmapped_icp_matches_a_python_loop(problem):
+    view, T_true, points, valid = problem
+    starts = [_perturb(T_true, (0.3 * i, -0.2 * i, 0.1), (i, -i, 2.0 * i)) for i in range(3)]
+    settings = SETTINGS["gauss-newton"]
+    batched = jax.jit(jax.vmap(icp, in_axes=(None, None, None, None, None, 0, None)), static_argnums=6)(
+        view, CANDIDATES, jnp.ones(8, bool), points, valid, jax.tree.map(lambda *x: jnp.stack(x), *starts), settings)
+    for i, start in enumerate(starts):
+        one = _icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, settings)
+        np.testing.assert_allclose(np.asarray(batched.T_object_sensor.wxyz_xyz[i]),
+                                   np.asarray(one.T_object_sensor.wxyz_xyz), atol=2e-5)
+        assert int(batched.iterations[i]) == int(one.iterations)
+
+
+def test_no_points_or_no_candidates_fail_without_nan(problem):
+    view, T_true, points, valid = problem
+    start = _perturb(T_true, (1.0, 0.0, 0.0), (0.0, 0.0, 5.0))
+    run = lambda *args: _icp(*args, SETTINGS["gauss-newton"])  # noqa: E731
+    for point_valid, candidate_valid in [(jnp.zeros_like(valid), jnp.ones(8, bool)),
+                                         (valid, jnp.zeros(8, bool))]:
+        estimate = run(view, CANDIDATES, candidate_valid, points, point_valid, start)
+        assert not bool(estimate.converged)
+        assert np.all(np.isfinite(np.asarray(estimate.T_object_sensor.wxyz_xyz)))
+        np.testing.assert_allclose(np.asarray(estimate.T_object_sensor.wxyz_xyz), np.asarray(start.wxyz_xyz), atol=1e-6)
+        assert np.isfinite(float(estimate.score)) and float(estimate.overlap) == 0.0
+    # A start far away from every candidate: nothing matches, the start comes back.
+    far = _perturb(T_true, (0.0, 0.0, 50.0), (0.0, 0.0, 0.0))
+    estimate = run(view, CANDIDATES, jnp.ones(8, bool), points, valid, far)
+    assert not bool(estimate.converged)
+    np.testing.assert_allclose(np.asarray(estimate.T_object_sensor.wxyz_xyz), np.asarray(far.wxyz_xyz), atol=1e-6)
+
+
+def test_gradient_of_the_pose_with_respect_to_the_query_heightmap(bumps_map, synthetic):
+    with jax.enable_x64(True):
+        view = jax.tree.map(lambda x: x.astype(jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x,
+                            LocalizationMap.from_tactile_map(bumps_map))
+        T_true = jaxlie.SE3(synthetic.sensor_pose(1.3, -0.7, 5.0).wxyz_xyz.astype(jnp.float64))
+        query = _query(synthetic, T_true)
+        start = jaxlie.SE3(_perturb(T_true, (0.4, -0.3, 0.2), (1.0, -1.0, 2.0)).wxyz_xyz.astype(jnp.float64))
+        # Smooth settings: no trimming, no freezing (a finite difference must not change the
+        # set of used points or the iteration that converges).
+        settings = IcpSettings(iterations=5, trim_fraction=1.0, tolerance_mm=0.0, max_distance_mm=3.0)
+
+        @jax.jit
+        def pose(heightmap):
+            q = query.replace(heightmap=heightmap)
+            points, valid = query_points(q, view.mm_per_px, 48)
+            estimate = icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, settings)
+            return estimate.T_object_sensor.log()
+
+        heightmap = query.heightmap.astype(jnp.float64)
+        check_grads(pose, (heightmap,), order=1, modes=["rev"], eps=1e-5, atol=1e-4, rtol=1e-3)
+        # Raising the whole patch by 0.1 mm moves the estimate by about 0.1 mm along the sensor z.
+        moved = pose(heightmap + 0.1 * query.mask)
+        T0, T1 = jaxlie.SE3.exp(pose(heightmap)), jaxlie.SE3.exp(moved)
+        shift = (T0.inverse() @ T1).translation()
+        np.testing.assert_allclose(np.asarray(shift), [0.0, 0.0, 0.1], atol=0.02)
