@@ -42,9 +42,9 @@ class ContrastiveConfig:
     """Settings of :func:`train_encoder` (defaults: the shipped ``features-tactile`` encoder)."""
 
     preset: str = "resnet_tactile"
-    input_size: tuple[int, int] = (60, 80)
+    input_size: tuple[int, int] = (72, 96)
     """(h, w) network input, pixels (images are resized once, before training)."""
-    steps: int = 1500
+    steps: int = 1100
     batch_size: int = 32
     """Anchors per step; the network sees twice as many views (anchor and partner)."""
     objects_per_batch: int = 2

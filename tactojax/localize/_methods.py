@@ -1,4 +1,4 @@
-"""Localization methods of the paper (section VI): RANDOM, CTI, CTI-ICP-N, and multi-start ICP.
+"""Localization methods: the paper's RANDOM, CTI, CTI-ICP-N (section VI), and ours.
 
 ``localize`` is the one entry point: jitted, compiled once per map size and method, so a
 control loop can call it for every touch. A method is named by a string:
@@ -146,11 +146,10 @@ def estimate_pose(
     if method.kind == "cti":
         score, overlap, _ = fit_quality(view, indices[:1], indices_valid[:1], points, points_valid,
                                         T_first, settings)
-        estimate = PoseEstimate(T_object_sensor=T_first, score=score, overlap=overlap,
-                                converged=any_valid, iterations=jnp.int32(0),
-                                imprint_index=first.astype(jnp.int32))
         # Retrieval alone does not need contact, but a touch without any is no localization.
-        estimate = estimate.replace(converged=any_valid & jnp.any(points_valid))
+        estimate = PoseEstimate(T_object_sensor=T_first, score=score, overlap=overlap,
+                                converged=any_valid & jnp.any(points_valid), iterations=jnp.int32(0),
+                                imprint_index=first.astype(jnp.int32))
     elif method.kind == "cti-icp":
         estimate = icp(view, indices, indices_valid, points, points_valid, T_first, settings)
         estimate = estimate.replace(imprint_index=first.astype(jnp.int32))
