@@ -74,7 +74,7 @@ def cylinder_map(mapping_dataset, lookup_model):
 
 @pytest.fixture(scope="session")
 def gum_box_map(tmp_path_factory, small_spec, lookup_model):
-    """A second object's map for identification: the gum box, 20 mm grid, yaw 0, all 4 turns."""
+    """A second object's map for identification: the gum box, 30 mm grid, yaw 0, all 4 turns."""
     import jax
 
     from tactojax.io import read_grasps, simulate_to_dataset
@@ -84,7 +84,7 @@ def gum_box_map(tmp_path_factory, small_spec, lookup_model):
 
     path = tmp_path_factory.mktemp("data") / "gum_box"
     simulate_to_dataset(path, jax.random.key(1), small_spec, get_object("gum_box"),
-                        MappingProtocol(grid_mm=20.0, yaws_deg=(0.0,)), progress=False)
+                        MappingProtocol(grid_mm=30.0, yaws_deg=(0.0,)), progress=False)
     grasps = read_grasps(path)
     return build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                              grasps["object_id"], T_world_object=grasps["T_world_object"],
