@@ -20,12 +20,12 @@ from pathlib import Path
 
 import jax
 
+from tactojax.cli._map import DEFAULT_MODEL
+from tactojax.cli._maps import DEFAULT_ENCODER
 from tactojax.cli._table import format_table, write_json
 
 DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")
 DEMO_METHODS = ("random", "cti", "cti-icp-1", "cti-icp-5")
-DEFAULT_MODEL = "bundled:fast-gelslim-0.5"
-DEFAULT_ENCODER = "bundled:features-tactile"
 
 
 def add_parser(commands) -> None:

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from tactojax.cli._maps import add_encoder_argument, load_maps_with_features
+from tactojax.cli._map import DEFAULT_MODEL
+from tactojax.cli._maps import DEFAULT_ENCODER, add_encoder_argument, load_maps_with_features
 from tactojax.cli._table import format_table, write_json
-
-DEFAULT_MODEL = "bundled:fast-gelslim-0.5"
 
 
 def add_parser(commands) -> None:
@@ -60,8 +59,6 @@ def run(args) -> int:
     check_image(model, image)
     maps, encoder = load_maps_with_features(map_paths, args.encoder, progress=False)
     if encoder is None:  # the maps' stored features: encode the touch with the default encoder
-        from tactojax.cli._maps import DEFAULT_ENCODER
-
         encoder = resolve_encoder(args.encoder or DEFAULT_ENCODER)
     if encoder.feature_dim != maps[0].features.shape[1]:
         raise ValueError(f"the maps store {maps[0].features.shape[1]}-long features but the encoder gives "

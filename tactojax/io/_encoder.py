@@ -24,7 +24,7 @@ from tactojax.geometry import sensor_pose
 from tactojax.io._atomic import atomic_write_bytes
 from tactojax.io._dataset import open_dataset
 from tactojax.io._map import read_grasps
-from tactojax.io._shape import BUNDLED_DIR, CorruptCheckpointError
+from tactojax.io._shape import BUNDLED_DIR, CorruptCheckpointError, read_checkpoint_payload
 
 ENCODER_FORMAT = "tactojax-feature-encoder"
 ENCODER_VERSION = 1
@@ -54,18 +54,7 @@ def save_encoder(path, encoder: Encoder, *, metadata: dict | None = None) -> Pat
 
 
 def _read(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no encoder checkpoint at {path}")
-    try:
-        payload = serialization.msgpack_restore(path.read_bytes())
-    except Exception as error:  # msgpack raises several unrelated types
-        raise CorruptCheckpointError(f"{path} is not a readable encoder checkpoint ({error})") from None
-    if not isinstance(payload, dict) or payload.get("format") != ENCODER_FORMAT:
-        raise CorruptCheckpointError(f"{path} is not a {ENCODER_FORMAT} file")
-    if payload.get("version") != ENCODER_VERSION:
-        raise CorruptCheckpointError(f"{path}: unsupported encoder version {payload.get('version')}")
-    return payload
+    return read_checkpoint_payload(path, ENCODER_FORMAT, (ENCODER_VERSION,), kind="encoder checkpoint")
 
 
 def load_encoder(path) -> Encoder:

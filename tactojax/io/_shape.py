@@ -91,19 +91,29 @@ def save_shape_model(path, model: ShapeModel, *, metadata: dict | None = None) -
     return path
 
 
-def _read(path, expected_format: str) -> dict:
+def read_checkpoint_payload(path, expected_format: str, readable_versions, *, kind: str = "checkpoint") -> dict:
+    """The msgpack payload of a tactojax checkpoint, checked for its format and version.
+
+    Shared by the shape-model and encoder checkpoints. ``kind`` names the file in errors
+    (e.g. ``"encoder checkpoint"``).
+    """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}")
+        raise FileNotFoundError(f"no {kind} at {path}")
     try:
         payload = serialization.msgpack_restore(path.read_bytes())
     except Exception as error:  # msgpack raises several unrelated types
-        raise CorruptCheckpointError(f"{path} is not a readable checkpoint ({error})") from None
+        raise CorruptCheckpointError(f"{path} is not a readable {kind} ({error})") from None
     if not isinstance(payload, dict) or payload.get("format") != expected_format:
         raise CorruptCheckpointError(f"{path} is not a {expected_format} file")
-    if payload.get("version") not in READABLE_VERSIONS:
-        raise CorruptCheckpointError(f"{path}: unsupported version {payload.get('version')}")
+    if payload.get("version") not in readable_versions:
+        raise CorruptCheckpointError(
+            f"{path}: unsupported {kind.removesuffix('checkpoint')}version {payload.get('version')}")
     return payload
+
+
+def _read(path, expected_format: str) -> dict:
+    return read_checkpoint_payload(path, expected_format, READABLE_VERSIONS)
 
 
 def _model_from_payload(payload: dict, path) -> ShapeModel:
