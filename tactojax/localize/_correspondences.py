@@ -1,10 +1,11 @@
 """Correspondences between query points and stored imprints, for ICP and for checks.
 
-Projective association (the default): a point near the object's surface, expressed in the sensor frame of a stored imprint, lies
-above the pixel (x / pitch, y / pitch); that imprint's heightmap gives the touched surface
-there, (x, y, -h(x, y)), and its slope the surface normal. Nothing is built at query time: a
-correspondence costs one 2 x 2 gather in a stored heightmap (bilinear height, its exact
-slope), and the residual is a smooth function of the point inside a pixel cell.
+Projective association (the default): a point near the object's surface, expressed in the
+sensor frame of a stored imprint, lies above the pixel (x / pitch, y / pitch); that imprint's
+heightmap gives the touched surface there, (x, y, -h(x, y)), and its slope the surface normal.
+Nothing is built at query time: a correspondence costs one 2 x 2 gather in a stored heightmap
+(bilinear height, its exact slope), and the residual is a smooth function of the point inside
+a pixel cell.
 
 Nearest-point association (:func:`nearest_correspondences`): the classical ICP's nearest
 stored contact point in 3D, brute force over the candidates' sampled points.

@@ -21,9 +21,8 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import LocalizationMap, map_query
-from tactojax.localize._methods import (PAPER_METHODS, POINTS_PER_QUERY, Method, estimate_pose, localize_query,
-                                        parse_method, query_points)
-from tactojax.localize._pose import PoseEstimate
+from tactojax.localize._methods import (PAPER_METHODS, POINTS_PER_QUERY, estimate_pose, localize_query, parse_method,
+                                        query_points)
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.localize._search import SearchSettings
 from tactojax.mapping import TactileMap
@@ -100,7 +99,8 @@ def oracle_imprints(
                + jnp.sum(b**2, axis=-1))
     errors = jnp.sqrt(jnp.maximum(squared, 0.0))
     index = jnp.arange(len(view))
-    eligible = view.imprint_valid & (jnp.abs(view.openings - opening) < max_opening_difference_mm) & (index != exclude)
+    eligible = (view.imprint_valid & (jnp.abs(view.openings - opening) < max_opening_difference_mm)
+                & (index != exclude))
     _, indices = jax.lax.top_k(jnp.where(eligible, -errors, -jnp.inf), n)
     return indices, eligible[indices]
 
@@ -225,7 +225,8 @@ def evaluate_localization(
     queries = np.asarray(queries, np.int64)
     if len(queries) == 0:
         raise ValueError("no query imprints to evaluate")
-    symmetries = None if symmetries is None else jaxlie.SE3(jnp.asarray(symmetries.wxyz_xyz, jnp.float32).reshape(-1, 7))
+    if symmetries is not None:
+        symmetries = jaxlie.SE3(jnp.asarray(symmetries.wxyz_xyz, jnp.float32).reshape(-1, 7))
     count = len(queries)
     padded = np.concatenate([queries, np.repeat(queries[-1:], -count % chunk_size)])
     results = {}
@@ -275,7 +276,8 @@ def map_size_study(
     valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
     results = {}
     for fraction in fractions:
-        rng = np.random.default_rng(np.asarray(jax.random.key_data(jax.random.fold_in(key, int(fraction * 1000)))).ravel()[-1])
+        seed = np.asarray(jax.random.key_data(jax.random.fold_in(key, int(fraction * 1000)))).ravel()[-1]
+        rng = np.random.default_rng(int(seed))
         if fraction >= 1.0:
             map_valid, queries = None, valid
         else:

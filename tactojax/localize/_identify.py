@@ -40,7 +40,11 @@ class MapLibrary:
         if len(dims) != 1 or 0 in dims:
             raise ValueError(f"every map needs features of one common length > 0, got lengths {sorted(dims)}")
         size = max(len(m) for m in maps)
-        pad = lambda x, fill: np.concatenate([np.asarray(x), np.full((size - len(x), *np.shape(x)[1:]), fill, np.asarray(x).dtype)])  # noqa: E731
+
+        def pad(x, fill):
+            x = np.asarray(x)
+            return np.concatenate([x, np.full((size - len(x), *x.shape[1:]), fill, x.dtype)])
+
         return MapLibrary(
             features=jnp.asarray(np.stack([pad(m.features, 0.0) for m in maps]), jnp.float32),
             openings=jnp.asarray(np.stack([pad(m.openings, np.inf) for m in maps]), jnp.float32),

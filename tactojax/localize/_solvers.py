@@ -21,12 +21,8 @@ SOLVERS = ("gauss-newton", "levenberg-marquardt")
 ResidualFunction = Callable[[Float[Array, "6"]], Float[Array, "P"]]
 
 
-def solve_positive_definite(matrix: Float[Array, "n n"], vector: Float[Array, "n"]) -> Float[Array, "n"]:
-    """``matrix^-1 vector`` for a small symmetric positive definite matrix (unrolled Cholesky).
-
-    For the 6 x 6 normal equations this fuses into a few element-wise kernels: cheaper to run
-    and to compile than a LAPACK call on CPU.
-    """
+def _cholesky(matrix: Float[Array, "n n"]) -> list[list]:
+    """Lower Cholesky factor as nested lists of scalars (unrolled: n is small and static)."""
     n = matrix.shape[-1]
     lower = [[None] * n for _ in range(n)]
     for j in range(n):
@@ -34,6 +30,12 @@ def solve_positive_definite(matrix: Float[Array, "n n"], vector: Float[Array, "n
         lower[j][j] = jnp.sqrt(jnp.maximum(diagonal, jnp.finfo(matrix.dtype).tiny))
         for i in range(j + 1, n):
             lower[i][j] = (matrix[i, j] - sum((lower[i][k] * lower[j][k] for k in range(j)), 0.0)) / lower[j][j]
+    return lower
+
+
+def _substitute(lower: list[list], vector: Float[Array, "n"]) -> Float[Array, "n"]:
+    """``(L L^T)^-1 vector`` by forward then backward substitution."""
+    n = len(lower)
     forward = []
     for i in range(n):
         forward.append((vector[i] - sum((lower[i][k] * forward[k] for k in range(i)), 0.0)) / lower[i][i])
@@ -41,6 +43,26 @@ def solve_positive_definite(matrix: Float[Array, "n n"], vector: Float[Array, "n
     for i in reversed(range(n)):
         solution[i] = (forward[i] - sum((lower[k][i] * solution[k] for k in range(i + 1, n)), 0.0)) / lower[i][i]
     return jnp.stack(solution)
+
+
+@jax.custom_jvp
+def solve_positive_definite(matrix: Float[Array, "n n"], vector: Float[Array, "n"]) -> Float[Array, "n"]:
+    """``matrix^-1 vector`` for a small symmetric positive definite matrix (unrolled Cholesky).
+
+    For the 6 x 6 normal equations this fuses into a few element-wise kernels: cheaper to run
+    and to compile than a LAPACK call on CPU. Its derivative reuses the factor (d x =
+    A^-1 (d b - d A x)), so differentiating ICP never differentiates the factorisation.
+    """
+    return _substitute(_cholesky(matrix), vector)
+
+
+@solve_positive_definite.defjvp
+def _solve_positive_definite_jvp(primals, tangents):
+    matrix, vector = primals
+    d_matrix, d_vector = tangents
+    lower = _cholesky(matrix)
+    solution = _substitute(lower, vector)
+    return solution, _substitute(lower, d_vector - d_matrix @ solution)
 
 
 def gauss_newton_step(

@@ -77,8 +77,8 @@ def test_find_correspondences_matches_a_loop(bumps_map):
             # The chosen candidate is one with the smallest |residual| (the presses agree to
             # rounding where they overlap, so ties are broken by float noise).
             slot = int(matches.candidate[p])
-            assert slot in found, (p, slot, found)
-            assert abs(found[slot][0]) <= min(abs(r) for r, _, _ in found.values()) + 1e-4, (p, slot, found, float(matches.residual[p]))
+            assert slot in found
+            assert abs(found[slot][0]) <= min(abs(r) for r, _, _ in found.values()) + 1e-4
             np.testing.assert_allclose(float(matches.residual[p]), found[slot][0], atol=2e-4)
             np.testing.assert_allclose(np.asarray(matches.target[p]), found[slot][1], atol=2e-4)
             np.testing.assert_allclose(np.asarray(matches.normal[p]), found[slot][2], atol=2e-4)

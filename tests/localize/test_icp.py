@@ -101,13 +101,14 @@ def test_gradient_of_the_pose_with_respect_to_the_query_heightmap(bumps_map, syn
         # set of used points or the iteration that converges).
         settings = IcpSettings(iterations=5, trim_fraction=1.0, tolerance_mm=0.0, max_distance_mm=3.0)
 
-        @jax.jit
-        def pose(heightmap):
+        @jax.jit  # the map is an argument, not a constant folded into the compiled program
+        def pose_in(view, heightmap):
             q = query.replace(heightmap=heightmap)
             points, valid = query_points(q, view.mm_per_px, 48)
             estimate = icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, settings)
             return estimate.T_object_sensor.log()
 
+        pose = lambda heightmap: pose_in(view, heightmap)  # noqa: E731
         heightmap = query.heightmap.astype(jnp.float64)
         check_grads(pose, (heightmap,), order=1, modes=["rev"], eps=1e-5, atol=1e-4, rtol=1e-3)
         # Raising the whole patch by 0.1 mm moves the estimate by about 0.1 mm along the sensor z.
@@ -115,3 +116,16 @@ def test_gradient_of_the_pose_with_respect_to_the_query_heightmap(bumps_map, syn
         T0, T1 = jaxlie.SE3.exp(pose(heightmap)), jaxlie.SE3.exp(moved)
         shift = (T0.inverse() @ T1).translation()
         np.testing.assert_allclose(np.asarray(shift), [0.0, 0.0, 0.1], atol=0.02)
+
+
+def test_positive_definite_solve_matches_numpy_with_its_derivatives():
+    from tactojax.localize._solvers import solve_positive_definite
+
+    rng = np.random.default_rng(0)
+    matrix = rng.normal(size=(6, 6))
+    matrix = matrix @ matrix.T + 0.1 * np.eye(6)
+    vector = rng.normal(size=6)
+    with jax.enable_x64(True):
+        solve = jax.jit(lambda a, b: solve_positive_definite(0.5 * (a + a.T), b))
+        np.testing.assert_allclose(np.asarray(solve(matrix, vector)), np.linalg.solve(matrix, vector), rtol=1e-9)
+        check_grads(solve, (jnp.asarray(matrix), jnp.asarray(vector)), order=1, modes=["fwd", "rev"])
