@@ -32,6 +32,8 @@ from tactojax.localize._identify import IdentificationResult as IdentificationRe
 from tactojax.localize._identify import MapLibrary as MapLibrary
 from tactojax.localize._identify import evaluate_identification as evaluate_identification
 from tactojax.localize._identify import identify as identify
+from tactojax.localize._localizer import LiveEstimate as LiveEstimate
+from tactojax.localize._localizer import Localizer as Localizer
 from tactojax.localize._map import LocalizationMap as LocalizationMap
 from tactojax.localize._map import Query as Query
 from tactojax.localize._map import map_query as map_query
@@ -68,8 +70,10 @@ __all__ = [
     "Correspondences",
     "IcpSettings",
     "IdentificationResult",
+    "LiveEstimate",
     "LocalizationErrors",
     "LocalizationMap",
+    "Localizer",
     "MapLibrary",
     "Method",
     "PoseEstimate",
