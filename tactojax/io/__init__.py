@@ -10,7 +10,6 @@ from tactojax.io._dataset import open_dataset as open_dataset
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
-from tactojax.io._encoder import load_touches as load_touches
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._imprints import dataset_metadata as dataset_metadata
@@ -37,6 +36,7 @@ from tactojax.io._shape import resolve_shape_model as resolve_shape_model
 from tactojax.io._shape import save_shape_model as save_shape_model
 from tactojax.io._shape import save_train_state as save_train_state
 from tactojax.io._shape import shape_model_metadata as shape_model_metadata
+from tactojax.io._touches import load_touches as load_touches
 from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
 from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
 from tactojax.io._taxim import TaximCalibration as TaximCalibration

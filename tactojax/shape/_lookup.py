@@ -110,7 +110,7 @@ def fit_lookup_model(
 
     from tactojax.geometry import heightmap_gradient
     from tactojax.shape._data import estimate_background
-    from tactojax.shape._predict import LOOKUP, ShapeModel, raw_prediction
+    from tactojax.shape._predict import LOOKUP, ShapeModel
 
     if background is None:
         background = estimate_background(data)
