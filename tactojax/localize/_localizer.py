@@ -49,8 +49,9 @@ class LiveEstimate:
     T_object_sensor: jaxlie.SE3
     """Sensor pose in that object's frame, mm."""
     confidence: float
-    """A heuristic in [0, 1]: 0 without contact or without a converged fit, else the ICP
-    overlap times ``exp(-(residual / CONFIDENT_RESIDUAL_MM)^2)``. Not a calibrated probability."""
+    """A heuristic in [0, 1]: 0 without contact or without a retrieved imprint, else the
+    fraction of the touch's points matched in the map times ``exp(-(residual /
+    CONFIDENT_RESIDUAL_MM)^2)``. Not a calibrated probability."""
     contact: bool
     """Whether the image shows any observed contact."""
     similarity: float
@@ -62,6 +63,8 @@ class LiveEstimate:
     overlap: float
     """Fraction of the query's points matched in the map at the estimate."""
     converged: bool
+    """ICP's step fell below its tolerance within its iterations (a good fit may still be False
+    when the iterations ran out first)."""
     latency_s: float
     """Wall time of the call, from image in to estimate out, s."""
 
@@ -168,10 +171,11 @@ class Localizer:
         margin = 1.0 if finite_others.size == 0 else similarity - float(finite_others.max())
         converged = bool(estimate.converged) and contact
         residual, overlap = float(estimate.score), float(estimate.overlap)
-        confidence = overlap * math.exp(-(residual / CONFIDENT_RESIDUAL_MM) ** 2) if converged else 0.0
+        registered = contact and int(estimate.imprint_index) >= 0
+        confidence = overlap * math.exp(-(residual / CONFIDENT_RESIDUAL_MM) ** 2) if registered else 0.0
         return LiveEstimate(
             object_id=self.object_ids[chosen],
-            T_object_sensor=jaxlie.SE3(jnp.asarray(estimate.T_object_sensor.wxyz_xyz)),
+            T_object_sensor=jaxlie.SE3(np.asarray(estimate.T_object_sensor.wxyz_xyz)),
             confidence=float(np.clip(confidence, 0.0, 1.0)), contact=contact, similarity=similarity,
             identity_margin=float(margin), residual_mm=residual, overlap=overlap, converged=converged,
             latency_s=latency_s)

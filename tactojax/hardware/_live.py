@@ -1,0 +1,145 @@
+"""The live localization loop: camera frames and gripper openings in, estimates out.
+
+:func:`live_estimates` runs a compiled :class:`~tactojax.localize.Localizer` on frames as they
+come. With ``latest_only`` (live cameras), a background thread keeps reading the camera and the
+loop always takes the newest frame, so a slow step costs skipped frames instead of a growing
+backlog (latency stays one step); without it (video files, benchmarks) every frame is
+processed in order. :class:`LiveStatistics` summarises a run: sustained rate, latency
+percentiles, skipped frames and recompilations.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tactojax.hardware._camera import Camera, EndOfStream, Frame
+from tactojax.localize import LiveEstimate, Localizer
+
+
+class LatestFrame:
+    """Reads a camera in a background thread and hands out only the newest frame.
+
+    Args:
+        camera: the frame source.
+    """
+
+    def __init__(self, camera: Camera):
+        self.camera = camera
+        self.skipped = 0
+        """Frames read from the camera but never handed out (a newer one replaced them)."""
+        self._frame: Frame | None = None
+        self._error: BaseException | None = None
+        self._fresh = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="tactojax-camera", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self.camera.read()
+            except BaseException as error:  # handed to the consumer, who raises it
+                with self._fresh:
+                    self._error = error
+                    self._fresh.notify_all()
+                return
+            with self._fresh:
+                if self._frame is not None:
+                    self.skipped += 1
+                self._frame = frame
+                self._fresh.notify_all()
+
+    def get(self, timeout_s: float = 5.0) -> Frame:
+        """The newest frame not handed out yet (waits for one); the camera's error once it fails."""
+        with self._fresh:
+            if not self._fresh.wait_for(lambda: self._frame is not None or self._error is not None, timeout_s):
+                raise TimeoutError(f"no camera frame within {timeout_s} s")
+            if self._frame is None:
+                raise self._error
+            frame, self._frame = self._frame, None
+            return frame
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def live_estimates(
+    camera: Camera,
+    localizer: Localizer,
+    opening_mm: float | Callable[[], float],
+    *,
+    max_frames: int | None = None,
+    latest_only: bool = False,
+) -> Iterator[tuple[Frame, LiveEstimate]]:
+    """Localize every frame (or the newest one each time) as the camera delivers it.
+
+    Args:
+        camera: the tactile camera (rectified frames of the localizer's image size).
+        localizer: the compiled localizer.
+        opening_mm: the gripper opening, mm: a number, or a function read once per frame
+            (e.g. ``gripper.opening_mm``).
+        max_frames: stop after this many estimates (None: until the stream ends).
+        latest_only: read the camera in a background thread and always take the newest frame.
+
+    Yields:
+        (frame, estimate) pairs.
+    """
+    read_opening = opening_mm if callable(opening_mm) else (lambda: float(opening_mm))
+    latest = LatestFrame(camera) if latest_only else None
+    count = 0
+    try:
+        while max_frames is None or count < max_frames:
+            try:
+                frame = latest.get() if latest is not None else camera.read()
+            except EndOfStream:
+                return
+            yield frame, localizer(frame.image, read_opening())
+            count += 1
+    finally:
+        if latest is not None:
+            latest.close()
+
+
+@dataclass
+class LiveStatistics:
+    """Rate and latency of a live run (wall-clock, this process).
+
+    Skipped frames are those the loop did not process (``latest_only`` took a newer one);
+    dropped frames are those the camera itself lost (``Frame.dropped_before``).
+    """
+
+    latencies_s: list[float] = field(default_factory=list)
+    """Per-frame localizer latency, s."""
+    started_s: float = field(default_factory=time.perf_counter)
+    finished_s: float | None = None
+    skipped_frames: int = 0
+    dropped_frames: int = 0
+    recompilations: int = 0
+
+    _previous_index: int | None = None
+
+    def add(self, frame: Frame, estimate: LiveEstimate) -> None:
+        """Count one processed frame (gaps in the frame index are skipped or dropped frames)."""
+        self.latencies_s.append(estimate.latency_s)
+        self.finished_s = time.perf_counter()
+        self.dropped_frames += frame.dropped_before
+        if self._previous_index is not None:
+            self.skipped_frames += max(frame.index - self._previous_index - 1 - frame.dropped_before, 0)
+        self._previous_index = frame.index
+
+    def summary(self) -> dict:
+        """Frames, sustained rate (Hz), latency percentiles (ms), skipped/dropped, recompilations."""
+        frames = len(self.latencies_s)
+        elapsed = (self.finished_s or time.perf_counter()) - self.started_s
+        latency_ms = 1e3 * np.asarray(self.latencies_s) if frames else np.zeros(1)
+        return {"frames": frames, "seconds": elapsed, "rate_hz": frames / elapsed if elapsed > 0 else 0.0,
+                "latency_ms": {"median": float(np.median(latency_ms)), "p95": float(np.percentile(latency_ms, 95)),
+                               "max": float(latency_ms.max())},
+                "skipped_frames": self.skipped_frames, "dropped_frames": self.dropped_frames,
+                "recompilations": self.recompilations}

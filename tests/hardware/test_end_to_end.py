@@ -1,0 +1,79 @@
+"""End to end on the simulated cell: record the mapping protocol through the camera, the WSG-50
+emulator and the UDP pose feed; build a map from the recording; localize a new grasp."""
+
+import jax
+import jaxlie
+import numpy as np
+import pytest
+
+from tactojax.features import encode_images
+from tactojax.geometry import sensor_pose
+from tactojax.hardware import Recorder, record_protocol, simulated_cell
+from tactojax.io import load_encoder, open_dataset, read_grasps, simulate_to_dataset
+from tactojax.localize import Localizer
+from tactojax.mapping import build_tactile_map
+from tactojax.objects import get_object
+from tactojax.simulate import MappingProtocol, mapping_plan
+
+PROTOCOL = MappingProtocol(grid_mm=30.0, yaws_deg=(0.0,))
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, small_spec):
+    obj = get_object("gum_box")
+    path = tmp_path_factory.mktemp("recording") / "gum_box"
+    plan = mapping_plan(obj, PROTOCOL)
+    with simulated_cell(small_spec, obj) as cell, Recorder(path, small_spec) as recorder:
+        summary = record_protocol(cell.robot, cell.camera, cell.gripper.opening_mm, cell.poses, plan, recorder,
+                                  object_id=obj.name, place_object=cell.scene.place_object, progress=False)
+    return path, summary, obj
+
+
+def test_recording_matches_the_simulator_run_directly(recording, small_spec, tmp_path):
+    """The devices add nothing and lose nothing: openings and poses equal the simulator's own."""
+    path, summary, obj = recording
+    direct = tmp_path / "direct"
+    simulate_to_dataset(direct, jax.random.key(0), small_spec, obj, PROTOCOL, progress=False)
+    expected = open_dataset(direct).read(["opening_mm", "T_world_gripper", "T_world_object"])
+    recorded = open_dataset(path).read()
+    assert summary.recorded == len(expected["opening_mm"]) and summary.stale == 0
+    np.testing.assert_allclose(recorded["opening_mm"], expected["opening_mm"], atol=1e-3)
+    np.testing.assert_allclose(recorded["T_world_gripper"], expected["T_world_gripper"], atol=1e-3)
+    np.testing.assert_allclose(recorded["T_world_object"], expected["T_world_object"], atol=1e-6)
+    assert np.all(np.diff(recorded["timestamp_s"]) > 0)
+    # Each frame was taken after its grasp closed: it shows contact (differs from the others' mean).
+    assert recorded["image"].std(axis=0).max() > 0
+
+
+def test_a_new_grasp_is_localized_in_the_recorded_map(recording, small_spec, lookup_model, tiny_encoder_path):
+    path, _, obj = recording
+    grasps = read_grasps(path)
+    tactile_map = build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
+                                    grasps["object_id"], T_world_object=grasps["T_world_object"],
+                                    points_per_imprint=256, progress=False)
+    encoder = load_encoder(tiny_encoder_path)
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images))
+    localizer = Localizer([tactile_map], lookup_model, encoder, method="cti-icp-2")
+
+    plan = mapping_plan(obj, PROTOCOL)
+    index = int(np.argmax(np.asarray(grasps["openings"]) < 40.0))  # a grasp across the box's thin side
+    T_commanded = jaxlie.SE3(plan.T_world_gripper.wxyz_xyz[int(grasps["index"][index])])
+    shifted = T_commanded @ jaxlie.SE3.from_translation(np.array([2.0, 0.0, 1.5], np.float32))  # off the grid
+    with simulated_cell(small_spec, obj, seed=7) as cell:
+        cell.scene.place_object(jaxlie.SE3(plan.T_world_object.wxyz_xyz[int(grasps["index"][index])]))
+        cell.robot.move_to(shifted)
+        assert cell.robot.grasp() is not None
+        frame = cell.camera.read()
+        opening = cell.gripper.opening_mm()
+        estimate = localizer(frame.image, opening)
+        T_world_gripper = cell.scene.T_world_gripper
+        T_world_object = cell.scene.T_world_object
+    T_object_sensor = T_world_object.inverse() @ sensor_pose(T_world_gripper, np.float32(opening))
+    # The box is symmetric: the error is the smallest over its symmetry group.
+    candidates = obj.symmetry.transforms() @ estimate.T_object_sensor
+    errors = np.linalg.norm(np.asarray(candidates.translation()) - np.asarray(T_object_sensor.translation()),
+                            axis=-1)
+    print(f"new grasp: position error {errors.min():.2f} mm, confidence {estimate.confidence:.3f} "
+          f"(residual {estimate.residual_mm:.2f} mm, overlap {estimate.overlap:.2f}, converged {estimate.converged})")
+    assert estimate.object_id == obj.name and estimate.contact
+    assert errors.min() < 5.0
