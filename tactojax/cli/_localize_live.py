@@ -1,0 +1,108 @@
+"""``tactojax localize-live --camera SRC --map MAP...``: identify and localize every camera frame."""
+
+from __future__ import annotations
+
+from tactojax.cli._map import DEFAULT_MODEL
+from tactojax.cli._maps import add_encoder_argument, load_maps_with_features
+
+
+def add_parser(commands) -> None:
+    parser = commands.add_parser(
+        "localize-live", help="identify and localize the grasped object from a live tactile camera",
+        description="Compile the whole touch (heightmap, features, identification, ICP) once, then run it "
+                    "on every frame of a camera, video file or stream, with the gripper opening from a "
+                    "WSG-50 or a fixed value. Prints the estimates and the sustained rate and latency.")
+    parser.add_argument("--camera", required=True,
+                        help="camera device index, video file, or stream URL (frames must show the gel; "
+                             "see --corners)")
+    parser.add_argument("--map", nargs="+", required=True, dest="maps", metavar="MAP", help="object maps (.npz)")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--opening", type=float, help="fixed gripper opening, mm")
+    source.add_argument("--gripper", metavar="URL",
+                        help="WSG-50 to read the opening from: a serial port or socket://HOST:PORT")
+    parser.add_argument("--corners", metavar="X,Y,...",
+                        help="gel corners in the raw image, 8 numbers: top-left, top-right, bottom-right, "
+                             "bottom-left (x, y) pixels; the frame is rectified to the sensor's image")
+    parser.add_argument("--method", default="cti-icp-5", help="localization method (default cti-icp-5)")
+    parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
+    add_encoder_argument(parser)
+    parser.add_argument("--frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--every-frame", action="store_true",
+                        help="process every frame in order (default for video files); otherwise always the "
+                             "newest frame, skipping those that arrive while a touch is processed")
+    parser.add_argument("--json", metavar="PATH", help="write every estimate and the run's statistics as JSON")
+    parser.set_defaults(run=run)
+
+
+def parse_corners(text: str | None):
+    """Eight comma-separated numbers -> (4, 2) corners, or None."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--corners must be 8 comma-separated numbers, got {text!r}") from None
+    if len(values) != 8:
+        raise ValueError(f"--corners needs 8 numbers (4 corners x, y), got {len(values)}")
+    return [values[i:i + 2] for i in range(0, 8, 2)]
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+    from tqdm.auto import tqdm
+
+    from tactojax._compilation import CompilationCounter
+    from tactojax.cli._table import format_table, write_json
+    from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
+    from tactojax.io import resolve_shape_model
+    from tactojax.localize import Localizer
+
+    if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
+        raise ValueError(f"--opening must be a positive number of mm, got {args.opening}")
+    model = resolve_shape_model(args.model)
+    maps, encoder = load_maps_with_features(args.maps, args.encoder)
+    if encoder is None:
+        from tactojax.cli._maps import DEFAULT_ENCODER
+        from tactojax.io import resolve_encoder
+
+        encoder = resolve_encoder(args.encoder or DEFAULT_ENCODER)
+    print("compiling the touch program ...", flush=True)
+    localizer = Localizer(maps, model, encoder, method=args.method)
+    print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}")
+    source = int(args.camera) if args.camera.isdigit() else args.camera
+    every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
+    gripper = WSG50(args.gripper) if args.gripper else None
+    opening = gripper.opening_mm if gripper is not None else args.opening
+    statistics, records = LiveStatistics(), []
+    try:
+        with OpenCVCamera(source, localizer.image_shape[:2], corners=parse_corners(args.corners)) as camera, \
+                CompilationCounter() as compiles:
+            bar = tqdm(live_estimates(camera, localizer, opening, max_frames=args.frames,
+                                      latest_only=not every_frame), total=args.frames, unit="frame")
+            for frame, estimate in bar:
+                statistics.add(frame, estimate)
+                bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}")
+                records.append({"frame": frame.index, "timestamp_s": frame.timestamp_s, **estimate.as_dict()})
+        statistics.recompilations = compiles.count
+    finally:
+        if gripper is not None:
+            gripper.close()
+    summary = statistics.summary()
+    if records:
+        last = records[-1]
+        print(format_table(["last frame", "value"], [
+            ["object", last["object_id"]], ["confidence", last["confidence"]],
+            ["sensor pose in object (wxyz, xyz mm)", ", ".join(f"{v:.2f}" for v in last["T_object_sensor_wxyz_xyz"])],
+        ]))
+    print(format_table(["run", "value"], [
+        ["frames", summary["frames"]], ["sustained rate (Hz)", summary["rate_hz"]],
+        ["latency median / p95 (ms)", f"{summary['latency_ms']['median']:.1f} / {summary['latency_ms']['p95']:.1f}"],
+        ["skipped / dropped frames", f"{summary['skipped_frames']} / {summary['dropped_frames']}"],
+        ["recompilations", summary["recompilations"]], ["compile at start-up (s)", localizer.compile_s],
+    ]))
+    if args.json:
+        write_json(args.json, {"maps": list(localizer.object_ids), "method": localizer.method.name,
+                               "compile_s": localizer.compile_s, "summary": summary, "estimates": records})
+    return 0
