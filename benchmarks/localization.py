@@ -23,16 +23,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import platform
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
+from tqdm.auto import tqdm
 
+from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
 from tactojax.io import load_tactile_map, resolve_encoder, resolve_shape_model, simulate_to_dataset, read_grasps
 from tactojax.localize import (
@@ -43,18 +43,6 @@ from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
 from tactojax.simulate import MappingProtocol
-
-
-class CompileCounter(logging.Handler):
-    """Counts XLA compilations (jax logs one 'Compiling ...' line per compile when asked to)."""
-
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.count = 0
-
-    def emit(self, record):
-        if "Compiling" in record.getMessage():
-            self.count += 1
 
 
 def timed(function, calls: int) -> tuple[float, float]:
@@ -151,16 +139,12 @@ def main() -> None:
         return localize(jax.random.fold_in(key, call), view, touch, method=method, exclude=int(index))
 
     jax.block_until_ready(one_touch(0, order[0]))  # compile (the loop body's eager ops too)
-    counter = CompileCounter()
-    logging.getLogger("jax").addHandler(counter)
-    jax.config.update("jax_log_compiles", True)
     times = []
-    for call, index in enumerate(order):
-        start = time.perf_counter()
-        jax.block_until_ready(one_touch(call, index))
-        times.append(time.perf_counter() - start)
-    jax.config.update("jax_log_compiles", False)
-    logging.getLogger("jax").removeHandler(counter)
+    with CompilationCounter() as counter:
+        for call, index in tqdm(list(enumerate(order)), desc="localize", unit="touch"):
+            start = time.perf_counter()
+            jax.block_until_ready(one_touch(call, index))
+            times.append(time.perf_counter() - start)
     jax_ms = 1e3 * float(np.median(times))
 
     # Same queries through both pipelines: accuracy and Open3D's time.

@@ -23,7 +23,7 @@ def recording(tmp_path_factory, small_spec):
     obj = get_object("gum_box")
     path = tmp_path_factory.mktemp("recording") / "gum_box"
     plan = mapping_plan(obj, PROTOCOL)
-    with simulated_cell(small_spec, obj) as cell, Recorder(path, small_spec) as recorder:
+    with simulated_cell(small_spec, obj, transport="pty") as cell, Recorder(path, small_spec) as recorder:
         summary = record_protocol(cell.robot, cell.camera, cell.gripper.opening_mm, cell.poses, plan, recorder,
                                   object_id=obj.name, place_object=cell.scene.place_object, progress=False)
     return path, summary, obj
