@@ -57,7 +57,9 @@ def observed_contact(
     change = jax.lax.reduce_window(image - background, 0.0, jax.lax.add, (3, 3, 1), (1, 1, 1), "SAME") / 9.0
     strong = (jnp.max(jnp.abs(change), axis=-1) > threshold).astype(jnp.float32)
     size = 2 * int(round(radius_mm / mm_per_px)) + 1
-    near = jax.lax.reduce_window(strong, 0.0, jax.lax.max, (size, size), (1, 1), "SAME") > 0.0
+    # A square dilation, as a max over rows then over columns (2 x size, not size^2, per pixel).
+    near = jax.lax.reduce_window(strong, 0.0, jax.lax.max, (size, 1), (1, 1), "SAME")
+    near = jax.lax.reduce_window(near, 0.0, jax.lax.max, (1, size), (1, 1), "SAME") > 0.0
     return mask & near
 
 
