@@ -116,13 +116,18 @@ class Query:
 
 def _strong(x):
     """The array with a fixed (not weak) dtype, so that jit caches do not split on weak types."""
+    if isinstance(x, jax.Array) and not x.weak_type:
+        return x  # already what jit wants: no copy, no dispatch (this runs on every touch)
     x = jnp.asarray(x)
     return jnp.asarray(x, dtype=x.dtype)
 
 
 def canonical_query(query: Query) -> Query:
     """The query with strongly typed arrays (a Python float opening would recompile)."""
-    return Query(heightmap=_strong(query.heightmap), mask=jnp.asarray(query.mask, bool),
+    mask = query.mask
+    if not (isinstance(mask, jax.Array) and mask.dtype == bool):
+        mask = jnp.asarray(mask, bool)
+    return Query(heightmap=_strong(query.heightmap), mask=mask,
                  feature=_strong(query.feature), opening=_strong(query.opening))
 
 
