@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import zlib
 from pathlib import Path
 
 import jax
@@ -44,7 +45,7 @@ except ImportError:
 def simulated(work: Path, name: str, protocol: MappingProtocol, tag: str) -> Path:
     path = work / f"{name}-{tag}"
     if not (path / "manifest.json").exists():
-        simulate_to_dataset(path, jax.random.key(hash(tag) % 2**31), gelslim(scale=0.5), get_object(name), protocol)
+        simulate_to_dataset(path, jax.random.key(zlib.crc32(tag.encode())), gelslim(scale=0.5), get_object(name), protocol)
     return path
 
 

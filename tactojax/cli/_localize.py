@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._map import DEFAULT_MODEL
-from tactojax.cli._maps import DEFAULT_ENCODER, add_encoder_argument, load_maps_with_features
+from tactojax.cli._maps import add_encoder_argument, maps_and_query_encoder
 from tactojax.cli._table import format_table, write_json
 
 
@@ -43,7 +43,7 @@ def run(args) -> int:
     import numpy as np
 
     from tactojax.features import encode_image
-    from tactojax.io import resolve_encoder, resolve_shape_model
+    from tactojax.io import resolve_shape_model
     from tactojax.localize import MapLibrary, Query, identify, localize, parse_method
     from tactojax.mapping import observed_contact
     from tactojax.shape import check_image, predict
@@ -57,12 +57,7 @@ def run(args) -> int:
     model = resolve_shape_model(args.model)
     image = read_image(image_path)
     check_image(model, image)
-    maps, encoder = load_maps_with_features(map_paths, args.encoder, progress=False)
-    if encoder is None:  # the maps' stored features: encode the touch with the default encoder
-        encoder = resolve_encoder(args.encoder or DEFAULT_ENCODER)
-    if encoder.feature_dim != maps[0].features.shape[1]:
-        raise ValueError(f"the maps store {maps[0].features.shape[1]}-long features but the encoder gives "
-                         f"{encoder.feature_dim}: pass the encoder that built them with --encoder")
+    maps, encoder = maps_and_query_encoder(map_paths, args.encoder, progress=False)
     pixels = jnp.asarray(image, jnp.float32) / 255.0
     heightmap, mask = predict(model, pixels)
     mask = observed_contact(pixels, model.background, mask, model.mm_per_px)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._map import DEFAULT_MODEL
-from tactojax.cli._maps import add_encoder_argument, load_maps_with_features
+from tactojax.cli._maps import add_encoder_argument, camera_source, maps_and_query_encoder
 
 
 def add_parser(commands) -> None:
@@ -62,16 +62,11 @@ def run(args) -> int:
     if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
         raise ValueError(f"--opening must be a positive number of mm, got {args.opening}")
     model = resolve_shape_model(args.model)
-    maps, encoder = load_maps_with_features(args.maps, args.encoder)
-    if encoder is None:
-        from tactojax.cli._maps import DEFAULT_ENCODER
-        from tactojax.io import resolve_encoder
-
-        encoder = resolve_encoder(args.encoder or DEFAULT_ENCODER)
+    maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     print("compiling the touch program ...", flush=True)
     localizer = Localizer(maps, model, encoder, method=args.method)
     print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}")
-    source = int(args.camera) if args.camera.isdigit() else args.camera
+    source = camera_source(args.camera)
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
     gripper = WSG50(args.gripper) if args.gripper else None
     opening = gripper.opening_mm if gripper is not None else args.opening

@@ -32,6 +32,25 @@ def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool =
     return maps, encoder
 
 
+def maps_and_query_encoder(paths, encoder_name: str | None, *, progress: bool = True):
+    """The maps with features, and the encoder for new touches (theirs, or the default when the
+    maps keep their stored features); raises a clear error when its features do not fit the maps."""
+    from tactojax.io import resolve_encoder
+
+    maps, encoder = load_maps_with_features(paths, encoder_name, progress=progress)
+    if encoder is None:
+        encoder = resolve_encoder(encoder_name or DEFAULT_ENCODER)
+    if encoder.feature_dim != maps[0].features.shape[1]:
+        raise ValueError(f"the maps store {maps[0].features.shape[1]}-long features but the encoder gives "
+                         f"{encoder.feature_dim}: pass the encoder that built them with --encoder")
+    return maps, encoder
+
+
+def camera_source(text: str) -> int | str:
+    """A ``--camera`` argument: a device index (digits) or a file path / stream URL."""
+    return int(text) if text.isdigit() else text
+
+
 def object_symmetries(object_id: str):
     """The catalog object's symmetry group (SE3 batch), or None for objects outside the catalog."""
     from tactojax.objects import CATALOG, get_object

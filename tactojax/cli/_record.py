@@ -47,6 +47,7 @@ def open_pose_source(text: str):
 
 def run(args) -> int:
     from tactojax.cli._localize_live import parse_corners
+    from tactojax.cli._maps import camera_source
     from tactojax.hardware import WSG50, OpenCVCamera, Recorder, record_grasps, record_protocol, simulated_cell
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
@@ -67,10 +68,9 @@ def run(args) -> int:
         if missing:
             raise ValueError(f"a real recording needs {', '.join(missing)} (or --simulate OBJECT)")
         source = {"camera": args.camera, "corners": args.corners, "gripper": args.gripper, "pose": args.pose}
-        camera_source = int(args.camera) if args.camera.isdigit() else args.camera
         poses = open_pose_source(args.pose)
         try:
-            with OpenCVCamera(camera_source, spec, corners=parse_corners(args.corners)) as camera, \
+            with OpenCVCamera(camera_source(args.camera), spec, corners=parse_corners(args.corners)) as camera, \
                     WSG50(args.gripper) as gripper, Recorder(args.out, spec, source=source) as recorder:
                 summary = record_grasps(camera, gripper, poses, recorder, object_id=args.object_id,
                                         touches=args.touches, max_skew_s=args.max_skew_ms / 1e3)

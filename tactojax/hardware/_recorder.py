@@ -29,7 +29,7 @@ from tactojax.hardware._camera import Camera
 from tactojax.hardware._pose_source import PoseSource, StaleDataError
 from tactojax.hardware._robot import Robot
 from tactojax.hardware._sync import SynchronisedTouch, synchronise
-from tactojax.io import DatasetWriter
+from tactojax.io import DatasetWriter, sensor_metadata
 from tactojax.sensor import SensorSpec
 from tactojax.simulate import GraspPlan
 
@@ -59,8 +59,7 @@ class Recorder:
     def __init__(self, path: str | os.PathLike, spec: SensorSpec, *, source: dict | None = None):
         self.spec = spec
         metadata = {
-            "sensor": {"name": spec.name, "height_px": spec.height_px, "width_px": spec.width_px,
-                       "mm_per_px": spec.mm_per_px, "gel_thickness_mm": spec.gel_thickness_mm},
+            "sensor": sensor_metadata(spec),
             "protocol": {"name": "recording"},
             "recording": source or {},
         }

@@ -7,6 +7,7 @@ from tactojax.io._dataset import DatasetWriter as DatasetWriter
 from tactojax.io._dataset import dataset_summary as dataset_summary
 from tactojax.io._dataset import infer_schema as infer_schema
 from tactojax.io._dataset import open_dataset as open_dataset
+from tactojax.io._imprints import sensor_metadata as sensor_metadata
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
@@ -57,6 +58,7 @@ __all__ = [
     "load_touches",
     "resolve_encoder",
     "save_encoder",
+    "sensor_metadata",
     "dataset_metadata",
     "dataset_summary",
     "infer_schema",

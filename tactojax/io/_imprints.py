@@ -24,11 +24,16 @@ from tactojax.sensor import Imprint, SensorSpec
 from tactojax.simulate import CalibrationProtocol, GraspConfig, MappingProtocol, simulate_protocol
 
 
+def sensor_metadata(spec: SensorSpec) -> dict:
+    """The sensor entry of a dataset's metadata (what ``read_grasps`` and map building read)."""
+    return {"name": spec.name, "height_px": spec.height_px, "width_px": spec.width_px,
+            "mm_per_px": spec.mm_per_px, "gel_thickness_mm": spec.gel_thickness_mm}
+
+
 def dataset_metadata(spec: SensorSpec, protocol, config: GraspConfig) -> dict:
     """The metadata that must agree between everything written to one dataset."""
     return {
-        "sensor": {"name": spec.name, "height_px": spec.height_px, "width_px": spec.width_px,
-                   "mm_per_px": spec.mm_per_px, "gel_thickness_mm": spec.gel_thickness_mm},
+        "sensor": sensor_metadata(spec),
         "protocol": {"name": protocol.name, **dataclasses.asdict(protocol)},
         "grasp": dataclasses.asdict(config),
     }

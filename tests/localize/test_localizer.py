@@ -1,12 +1,11 @@
 """The live Localizer against the same touch run stage by stage through the public API."""
 
-import logging
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
 from tactojax.io import load_encoder
 from tactojax.localize import Localizer, MapLibrary, Query, identify, localize
@@ -48,17 +47,10 @@ def test_live_localizer_matches_the_stage_by_stage_pipeline(live, lookup_model):
 def test_live_localizer_never_recompiles_and_rejects_bad_frames(live, cylinder_map):
     localizer, _, _ = live
     image = np.asarray(cylinder_map.images[0])
-    compiles = []
-    handler = logging.Handler()
-    handler.emit = lambda record: compiles.append(record.getMessage())
-    logging.getLogger("jax").addHandler(handler)
-    try:
-        with jax.log_compiles(True):
-            for opening in (30.0, 31.5, 60.0):
-                localizer(image, opening)
-    finally:
-        logging.getLogger("jax").removeHandler(handler)
-    assert not [m for m in compiles if "Compiling" in m]
+    with CompilationCounter() as compiles:
+        for opening in (30.0, 31.5, 60.0):
+            localizer(image, opening)
+    assert compiles.messages == []
     with pytest.raises(ValueError, match="uint8 RGB frames"):
         localizer(image[:-1], 30.0)
     with pytest.raises(ValueError, match="uint8 RGB frames"):
