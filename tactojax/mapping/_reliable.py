@@ -57,9 +57,13 @@ def membrane_skirt(
         curvature_per_mm: Laplacian of the indentation above which a pixel is skirt, 1/mm.
 
     Returns:
-        (H, W) bool, True on the skirt. Five-point Laplacian, the border replicated.
+        (H, W) bool, True on the skirt. Five-point Laplacian; across the image border the
+        heightmap is extended linearly (no curvature there: a replicated border would bend a
+        slope that the border cuts into a false concave kink).
     """
-    padded = jnp.pad(heightmap, 1, mode="edge")
+    rows = jnp.concatenate([2 * heightmap[:1] - heightmap[1:2], heightmap,
+                            2 * heightmap[-1:] - heightmap[-2:-1]], axis=0)
+    padded = jnp.concatenate([2 * rows[:, :1] - rows[:, 1:2], rows, 2 * rows[:, -1:] - rows[:, -2:-1]], axis=1)
     laplacian = (padded[2:, 1:-1] + padded[:-2, 1:-1] + padded[1:-1, 2:] + padded[1:-1, :-2]
                  - 4.0 * heightmap) / mm_per_px**2
     return laplacian > curvature_per_mm

@@ -70,9 +70,10 @@ _INLIER_FACTOR = 3.0  # inliers: |distance| < 3 robust_scale_mm
 _STEP_QUANTILE = 0.005  # the double cylinder's step: this quantile of the big side's axial positions
 # (the membrane wrapping the step's edge smears a few hundred of ~10^5 points past it)
 _END_QUANTILE = 0.0005  # untouched ends: this quantile of the on-surface points' axial positions
-# (and untouched cuboid sides: of their neighbours' points' positions across the axis)
 _TOUCHED_FRACTION = 0.1  # a cuboid side with fewer points than this fraction of the most-touched
 # side's is untouched: what lies on it is its neighbours' spill-over (contact edges, stray skirt)
+_SIDE_QUANTILE = 0.002  # untouched cuboid sides: this quantile of their neighbours' points' positions
+# (a few hundred of ~10^5 neighbour points may be false contact at the foot of a cliff past the edge)
 
 
 @struct.dataclass
@@ -324,7 +325,7 @@ def _untouched_sides(kind: str, theta, points_initial, on_surface, band) -> tupl
 
     Each side counts the on-surface points nearest to it (within ``band`` of its plane); one
     with fewer than ``_TOUCHED_FRACTION`` of the most-touched side's is untouched and goes where
-    the points on the touched sides across from it stop (the ``_END_QUANTILE`` quantiles of
+    the points on the touched sides across from it stop (the ``_SIDE_QUANTILE`` quantiles of
     their positions along its normal). The least squares cannot place it: no point lies on it,
     and the points on its neighbours only keep it from moving in.
     """
@@ -342,7 +343,7 @@ def _untouched_sides(kind: str, theta, points_initial, on_surface, band) -> tupl
     for axis in range(2):
         across = 1 - axis  # the sides across whose points this axis's extent is read
         neighbours = on_plane[:, across]
-        extent = _masked_quantiles(section[:, axis], neighbours, (_END_QUANTILE, 1.0 - _END_QUANTILE))
+        extent = _masked_quantiles(section[:, axis], neighbours, (_SIDE_QUANTILE, 1.0 - _SIDE_QUANTILE))
         usable = jnp.any(neighbours) & jnp.any(touched[across])
         low.append(jnp.where(usable & ~touched[axis, 0], extent[0], -jnp.inf))
         high.append(jnp.where(usable & ~touched[axis, 1], extent[1], jnp.inf))

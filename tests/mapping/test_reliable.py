@@ -69,10 +69,11 @@ def test_skirt_removal_keeps_convex_contacts(radius_mm, cylinder, kept):
     contact = (heightmap > 0.05) & ~membrane_skirt(heightmap, MM_PER_PX)
     patch = rigid > 1e-3
     assert np.sum(np.asarray(contact) & patch) >= kept * patch.sum()
-    # What is dropped is the rim: the middle third of the patch is all kept.
+    # What is dropped is the rim: the middle third of the patch is all kept (away from the image
+    # border, which the blurs, zero outside the image, bend).
     rows, cols = np.mgrid[0:SHAPE[0], 0:SHAPE[1]]
     distance = np.abs(cols - 40) if cylinder else np.hypot(cols - 40, rows - 30)
-    middle = patch & (distance * MM_PER_PX < np.sqrt(2 * radius_mm) / 3)
+    middle = patch & (distance * MM_PER_PX < np.sqrt(2 * radius_mm) / 3) & (rows >= 5) & (rows < SHAPE[0] - 5)
     assert np.all(np.asarray(contact)[middle])
 
 
@@ -127,7 +128,7 @@ def test_depth_observed_matches_a_scipy_reference_jit_and_vmap():
 
 def test_membrane_skirt_matches_a_numpy_laplacian():
     heightmap = _random_heightmaps(1)[0]
-    padded = np.pad(heightmap.astype(np.float64), 1, mode="edge")
+    padded = np.pad(heightmap.astype(np.float64), 1, mode="reflect", reflect_type="odd")  # linear across the border
     laplacian = (padded[2:, 1:-1] + padded[:-2, 1:-1] + padded[1:-1, 2:] + padded[1:-1, :-2]
                  - 4 * heightmap) / MM_PER_PX**2
     for curvature in (0.0, 0.25, 1.0):
