@@ -13,6 +13,9 @@ from tactojax.mapping._noise import NOISE_LEVELS as NOISE_LEVELS
 from tactojax.mapping._noise import KinematicNoise as KinematicNoise
 from tactojax.mapping._noise import perturb_kinematics as perturb_kinematics
 from tactojax.mapping._recover import fit_tactile_map as fit_tactile_map
+from tactojax.mapping._recover import shape_fit_clouds as shape_fit_clouds
+from tactojax.mapping._reliable import depth_observed as depth_observed
+from tactojax.mapping._reliable import membrane_skirt as membrane_skirt
 from tactojax.mapping._shape_fit import SHAPE_KINDS as SHAPE_KINDS
 from tactojax.mapping._shape_fit import ShapeFit as ShapeFit
 from tactojax.mapping._shape_fit import fit_shape as fit_shape
@@ -27,12 +30,15 @@ __all__ = [
     "ShapeFit",
     "TactileMap",
     "build_tactile_map",
+    "depth_observed",
     "fit_shape",
     "fit_tactile_map",
+    "membrane_skirt",
     "observed_contact",
     "perturb_kinematics",
     "point_surface_distances",
     "sample_contact_points",
+    "shape_fit_clouds",
     "shape_fit_errors",
     "stitched_point_cloud",
     "surface_distance",

@@ -16,9 +16,11 @@ the catalog objects). :func:`fit_shape`
    and sizes together by robust least squares on the signed distance of every point to the
    surface, with a Cauchy loss of scale ``5 * robust_scale_mm`` and then ``robust_scale_mm``,
    so that a few percent of outliers hardly move the estimate;
-3. pulls an end face that no point touched in to where the points on the surface stop, and
-   reports the Table II parameters under the catalog objects' names (``TABLE2_PARAMETERS``)
-   plus nuisance ones (length, top radius / side).
+3. pulls an end face that no point touched in to where the points on the surface stop, places a
+   cuboid side that no point touched where the points on its neighbours stop (optionally from a
+   second, full-resolution cloud: ``extent_points``), and reports the Table II parameters under
+   the catalog objects' names (``TABLE2_PARAMETERS``) plus nuisance ones (length, top radius /
+   side).
 
 Sizes pass through a softplus, so radii, sides and lengths stay positive; an empty or degenerate
 cloud comes back with finite numbers and ``converged=False``.
@@ -68,6 +70,10 @@ _INLIER_FACTOR = 3.0  # inliers: |distance| < 3 robust_scale_mm
 _STEP_QUANTILE = 0.005  # the double cylinder's step: this quantile of the big side's axial positions
 # (the membrane wrapping the step's edge smears a few hundred of ~10^5 points past it)
 _END_QUANTILE = 0.0005  # untouched ends: this quantile of the on-surface points' axial positions
+_TOUCHED_FRACTION = 0.1  # a cuboid side with fewer points than this fraction of the most-touched
+# side's is untouched: what lies on it is its neighbours' spill-over (contact edges, stray skirt)
+_SIDE_QUANTILE = 0.002  # untouched cuboid sides: this quantile of their neighbours' points' positions
+# (a few hundred of ~10^5 neighbour points may be false contact at the foot of a cliff past the edge)
 
 
 @struct.dataclass
@@ -313,8 +319,40 @@ def _big_cylinder_extent(kind: str, theta, points_initial, on_surface, axial) ->
     return jnp.where(jnp.any(big), jnp.stack([low, high]), jnp.inf)
 
 
+def _untouched_sides(kind: str, theta, points_initial, on_surface, band) -> tuple[Array, Array]:
+    """Where the cuboid's untouched sides go: (low (2,), high (2,)) positions along the shape
+    frame's y and z, mm; +-inf for a touched side, for other kinds, or without touched neighbours.
+
+    Each side counts the on-surface points nearest to it (within ``band`` of its plane); one
+    with fewer than ``_TOUCHED_FRACTION`` of the most-touched side's is untouched and goes where
+    the points on the touched sides across from it stop (the ``_SIDE_QUANTILE`` quantiles of
+    their positions along its normal). The least squares cannot place it: no point lies on it,
+    and the points on its neighbours only keep it from moving in.
+    """
+    infinite = jnp.full((2,), jnp.inf)
+    if kind != "cuboid":
+        return -infinite, infinite
+    section = _local_points(theta["pose"], points_initial, _MODELS[kind].rolls)[:, 1:]
+    gap = jnp.abs(section) - _positive(theta["sizes"][:2])  # signed distance to the y, z side planes
+    on_plane = on_surface[:, None] & (jnp.abs(gap) < band)  # (N, 2): on a y side, on a z side
+    nearest = jnp.argmax(gap, axis=1)[:, None] == jnp.arange(2)
+    counts = jnp.stack([jnp.sum(on_plane & nearest & (section < 0), axis=0),
+                        jnp.sum(on_plane & nearest & (section > 0), axis=0)], axis=-1)  # (axis, low / high)
+    touched = counts >= _TOUCHED_FRACTION * jnp.max(counts)
+    low, high = [], []
+    for axis in range(2):
+        across = 1 - axis  # the sides across whose points this axis's extent is read
+        neighbours = on_plane[:, across]
+        extent = _masked_quantiles(section[:, axis], neighbours, (_SIDE_QUANTILE, 1.0 - _SIDE_QUANTILE))
+        usable = jnp.any(neighbours) & jnp.any(touched[across])
+        low.append(jnp.where(usable & ~touched[axis, 0], extent[0], -jnp.inf))
+        high.append(jnp.where(usable & ~touched[axis, 1], extent[1], jnp.inf))
+    return jnp.stack(low), jnp.stack(high)
+
+
 def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_initial: Float[Array, "3"],
-            axial_low: Float[Array, ""], axial_high: Float[Array, ""], step_axial: Float[Array, "2"]):
+            axial_low: Float[Array, ""], axial_high: Float[Array, ""], step_axial: Float[Array, "2"],
+            side_low: Float[Array, "2"], side_high: Float[Array, "2"]):
     """Named parameters and ``T_object_shape`` (bigger end at -x, centred on the length).
 
     An end face that no point touched is not pinned by the least squares (the cost is flat
@@ -327,6 +365,10 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
     cylinder's touched surface stops and where the small one's starts, and the cost is flat
     there. The step goes where the big cylinder's surface stops (``step_axial``: its last
     on-surface point towards +x, and towards -x): a longer big cylinder would have been touched.
+
+    A cuboid side that no point touched is not pinned either, so it goes where the points on
+    its neighbours stop (``side_low`` / ``side_high``: position across the axis, along the
+    shape frame's y and z, of the low and the high side; +-inf for a touched side).
     """
     model = _MODELS[kind]
     sizes = theta["sizes"]
@@ -343,6 +385,7 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
         return value_start + slope * (start - fitted_start), value_start + slope * (end - fitted_start)
 
     flip = turn = jnp.asarray(False)
+    side_middle = jnp.zeros((2,))
     if kind == "cylinder":
         parameters = {"radius_mm": _positive(sizes[0]), "length_mm": length}
     elif kind == "semicone":
@@ -361,7 +404,13 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
                       "small_radius_mm": jnp.minimum(r_start, r_end),
                       "joint_mm": jnp.where(flip, length - joint, joint), "length_mm": length}
     elif kind == "cuboid":
-        half_y, half_z = _positive(sizes[0]), _positive(sizes[1])
+        half = _positive(sizes[:2])
+        high = jnp.where(jnp.isfinite(side_high), side_high, half)
+        low = jnp.where(jnp.isfinite(side_low), side_low, -half)
+        degenerate = high - low <= _MIN_SIZE_MM
+        low, high = jnp.where(degenerate, -half, low), jnp.where(degenerate, half, high)
+        side_middle = 0.5 * (low + high)
+        half_y, half_z = 0.5 * (high - low)
         turn = half_y > half_z
         parameters = {"side_1_mm": 2.0 * jnp.maximum(half_y, half_z),
                       "side_2_mm": 2.0 * jnp.minimum(half_y, half_z), "length_mm": length}
@@ -376,7 +425,8 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
     # origin moved to the middle of the length and the axes turned to the canonical ones.
     rotation_update, translation_update = _update(theta["pose"], model.rolls)
     rotation = rotation_initial @ rotation_update
-    origin = origin_initial + rotation_initial @ translation_update + rotation[:, 0] * 0.5 * (start + end)
+    origin = (origin_initial + rotation_initial @ translation_update + rotation[:, 0] * 0.5 * (start + end)
+              + rotation[:, 1:] @ side_middle)
     rotation = jnp.where(flip, rotation @ _FLIP, rotation)
     rotation = jnp.where(turn, rotation @ _QUARTER_ROLL, rotation)
     T_object_shape = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rotation), origin)
@@ -385,11 +435,17 @@ def _report(kind: str, theta, rotation_initial: Float[Array, "3 3"], origin_init
 
 # --------------------------------------------------------------------------- the fit
 
-@functools.partial(jax.jit, static_argnames=("kind", "max_iterations"))
-def _fit_shape(points, valid, robust_scale_mm, *, kind: str, max_iterations: int) -> ShapeFit:
+def _clean(points, valid):
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
-    points = jnp.where(valid[:, None], points, 0.0)  # padding may hold anything
+    return jnp.where(valid[:, None], points, 0.0), valid  # padding may hold anything
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "max_iterations"))
+def _fit_shape(points, valid, extent_points, extent_valid, robust_scale_mm, *, kind: str,
+               max_iterations: int) -> ShapeFit:
+    points, valid = _clean(points, valid)
+    extent_points, extent_valid = _clean(extent_points, extent_valid)
     scale = jnp.maximum(jnp.asarray(robust_scale_mm, jnp.float32), 1e-3)
 
     # 1. Initial frame and sizes from the cloud.
@@ -409,18 +465,23 @@ def _fit_shape(points, valid, robust_scale_mm, *, kind: str, max_iterations: int
     theta = final.theta  # the solver keeps only parameters with a finite cost
     distances = jnp.where(valid, final.residuals, 0.0)
 
-    # 3. Where the points on the surface (within 3 robust standard deviations of it, at most
-    #    robust_scale_mm) stop along the axis. Nearly the extremes, not the extremes: an outlier
-    #    displaced along the surface past an untouched end still lies on its extension.
-    sigma = 1.4826 * _masked_median(jnp.abs(distances), valid)
-    on_surface = valid & (jnp.abs(distances) < jnp.minimum(3.0 * sigma, scale))
-    axial = _local_points(theta["pose"], points_initial, _MODELS[kind].rolls)[:, 0]
+    # 3. Where the extent cloud's points on the surface (within 3 robust standard deviations of
+    #    it, at most robust_scale_mm) stop along the axis, and across it for untouched cuboid
+    #    sides. Nearly the extremes, not the extremes: an outlier displaced along the surface past
+    #    an untouched end still lies on its extension.
+    extent_initial = (extent_points - origin_initial) @ rotation_initial
+    extent_distances = jnp.where(extent_valid, _distances(theta, extent_initial, kind), 0.0)
+    sigma = 1.4826 * _masked_median(jnp.abs(extent_distances), extent_valid)
+    band = jnp.minimum(3.0 * sigma, scale)
+    on_surface = extent_valid & (jnp.abs(extent_distances) < band)
+    axial = _local_points(theta["pose"], extent_initial, _MODELS[kind].rolls)[:, 0]
     axial_low, axial_high = _masked_quantiles(axial, on_surface, (_END_QUANTILE, 1.0 - _END_QUANTILE))
     axial_low = jnp.where(jnp.any(on_surface), axial_low, -jnp.inf)
     axial_high = jnp.where(jnp.any(on_surface), axial_high, jnp.inf)
-    step_axial = _big_cylinder_extent(kind, theta, points_initial, on_surface, axial)
+    step_axial = _big_cylinder_extent(kind, theta, extent_initial, on_surface, axial)
+    side_low, side_high = _untouched_sides(kind, theta, extent_initial, on_surface, band)
     parameters, T_object_shape = _report(kind, theta, rotation_initial, origin_initial, axial_low, axial_high,
-                                         step_axial)
+                                         step_axial, side_low, side_high)
 
     # 4. Quality, with every number finite whatever came in.
     count = jnp.sum(valid)
@@ -450,6 +511,8 @@ def fit_shape(
     *,
     robust_scale_mm: float = 0.5,
     max_iterations: int = 60,
+    extent_points: Float[Array, "M 3"] | None = None,
+    extent_valid: Bool[Array, "M"] | None = None,
 ) -> ShapeFit:
     """Fit a Table II shape (paper section V) to a point cloud by robust least squares.
 
@@ -464,19 +527,32 @@ def fit_shape(
         robust_scale_mm: scale of the final Cauchy loss, mm: a few times the point noise;
             points much farther than this from the surface barely count.
         max_iterations: cap on the Levenberg-Marquardt iterations of each of the two stages.
+        extent_points, extent_valid: (M, 3) points, mm, and (M,) bool that say where the
+            surface stops (untouched ends and cuboid sides, the double cylinder's step); default
+            ``points``. Pass the full-resolution contact cloud when ``points`` is voxel-averaged
+            (a voxel centroid sits up to half a voxel inside an edge) or holds only the points
+            whose depth is trusted (an outline is right where a depth is not).
 
     Returns:
         :class:`ShapeFit`; ``converged=False`` (with finite numbers) when the fit failed or there
         were too few valid points (fewer than 3 per fitted parameter).
 
     Raises:
-        ValueError: unknown kind, or points not of shape (N, 3) with a matching ``valid``.
+        ValueError: unknown kind, or points not of shape (N, 3) with a matching ``valid`` (the
+            same for the extent cloud).
     """
     kind = _check_kind(kind)
     points, valid = jnp.asarray(points), jnp.asarray(valid)
-    if points.ndim != 2 or points.shape[-1] != 3 or valid.shape != points.shape[:1]:
-        raise ValueError(f"expected points (N, 3) and valid (N,), got {points.shape} and {valid.shape}")
-    return _fit_shape(points, valid, robust_scale_mm, kind=kind, max_iterations=max_iterations)
+    if extent_points is None and extent_valid is None:
+        extent_points, extent_valid = points, valid
+    elif extent_points is None or extent_valid is None:
+        raise ValueError("give both extent_points and extent_valid, or neither")
+    extent_points, extent_valid = jnp.asarray(extent_points), jnp.asarray(extent_valid)
+    for name, (cloud, mask) in {"points": (points, valid), "extent_points": (extent_points, extent_valid)}.items():
+        if cloud.ndim != 2 or cloud.shape[-1] != 3 or mask.shape != cloud.shape[:1]:
+            raise ValueError(f"expected {name} (N, 3) and a matching (N,) mask, got {cloud.shape} and {mask.shape}")
+    return _fit_shape(points, valid, extent_points, extent_valid, robust_scale_mm, kind=kind,
+                      max_iterations=max_iterations)
 
 
 def true_shape_parameters(obj: TactileObject, kind: str) -> dict[str, float]:

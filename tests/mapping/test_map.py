@@ -141,3 +141,29 @@ def test_observed_contact_matches_a_scipy_reference():
     near = ndimage.maximum_filter(change > 0.05, size=9, mode="constant")  # 2 mm = 4 px each way
     np.testing.assert_array_equal(np.asarray(observed), mask & near)
     assert 0 < np.asarray(observed).sum() < mask.sum()
+
+
+def test_shape_fit_clouds_hold_the_refined_contact_of_the_map(cylinder_map):
+    from tactojax.mapping import depth_observed, fit_tactile_map, membrane_skirt, shape_fit_clouds
+
+    depth, contact = shape_fit_clouds(cylinder_map)
+    plain_depth, plain_contact = shape_fit_clouds(cylinder_map, refine_contact=False)
+    map_points, _ = stitched_point_cloud(cylinder_map)
+    np.testing.assert_array_equal(plain_depth, map_points)
+    np.testing.assert_array_equal(plain_contact, map_points)
+    # As many points per imprint as the map samples, from the refined masks (pixel counts).
+    mm_per_px = cylinder_map.mm_per_px
+    refined = np.stack([np.asarray(m & ~membrane_skirt(h, mm_per_px))
+                        for h, m in zip(cylinder_map.heightmaps, cylinder_map.masks)])
+    observed = refined & np.stack([np.asarray(depth_observed(h, mm_per_px)) for h in cylinder_map.heightmaps])
+    per_imprint = cylinder_map.points.shape[1]
+    imprints = np.asarray(cylinder_map.imprint_valid)
+    assert len(contact) == np.minimum(refined.reshape(len(refined), -1).sum(1), per_imprint)[imprints].sum()
+    assert len(depth) == np.minimum(observed.reshape(len(observed), -1).sum(1), per_imprint)[imprints].sum()
+    assert 0.5 * len(map_points) < len(depth) <= len(contact) <= len(map_points)
+    # The skirt hangs off the object: the refined contact lies closer to the true surface.
+    cylinder = get_object("cylinder")
+    assert surface_distance(cylinder, contact)["p95"] < surface_distance(cylinder, map_points)["p95"]
+    fit = fit_tactile_map(cylinder_map, "cylinder")
+    assert bool(fit.converged)
+    assert abs(float(fit.parameters["radius_mm"]) - 25.0) < 0.02 * 25.0
