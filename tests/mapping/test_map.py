@@ -153,9 +153,9 @@ def test_shape_fit_clouds_hold_the_refined_contact_of_the_map(cylinder_map):
     np.testing.assert_array_equal(plain_contact, map_points)
     # As many points per imprint as the map samples, from the refined masks (pixel counts).
     mm_per_px = cylinder_map.mm_per_px
-    refined = np.stack([np.asarray(m & ~membrane_skirt(h, mm_per_px))
-                        for h, m in zip(cylinder_map.heightmaps, cylinder_map.masks)])
-    observed = refined & np.stack([np.asarray(depth_observed(h, mm_per_px)) for h in cylinder_map.heightmaps])
+    masks_of = jax.jit(jax.vmap(lambda h, m: (m & ~membrane_skirt(h, mm_per_px), depth_observed(h, mm_per_px))))
+    refined, reachable = (np.asarray(x) for x in masks_of(cylinder_map.heightmaps, cylinder_map.masks))
+    observed = refined & reachable
     per_imprint = cylinder_map.points.shape[1]
     imprints = np.asarray(cylinder_map.imprint_valid)
     assert len(contact) == np.minimum(refined.reshape(len(refined), -1).sum(1), per_imprint)[imprints].sum()

@@ -29,22 +29,26 @@ def _reference(slope: np.ndarray, mm_per_px: float) -> np.ndarray:
     return solution.reshape(height, width)
 
 
+# One compilation per shape for all tests (eager calls would compile every primitive).
+_integrate = jax.jit(integrate_gradient, static_argnums=1)
+_integrate_anchored = jax.jit(lambda slope, mm_per_px: zero_background(integrate_gradient(slope, mm_per_px)),
+                              static_argnums=1)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_matches_sparse_least_squares(seed):
     slope = np.random.default_rng(seed).normal(size=(7, 9, 2)).astype(np.float32)
     expected = _reference(slope.astype(np.float64), 0.3)
-    np.testing.assert_allclose(integrate_gradient(jnp.asarray(slope), 0.3), expected, atol=2e-4)
-    jitted = jax.jit(integrate_gradient, static_argnums=1)
-    np.testing.assert_allclose(jitted(jnp.asarray(slope), 0.3), expected, atol=2e-4)
+    np.testing.assert_allclose(_integrate(jnp.asarray(slope), 0.3), expected, atol=2e-4)
 
 
 def test_recovers_smooth_surface_and_vmaps():
     rows, cols = np.mgrid[:40, :50] * 0.2
     bumps = np.stack([np.exp(-((cols - 5 - k) ** 2 + (rows - 4) ** 2) / 4.0) for k in range(3)])
     slopes = jax.vmap(lambda h: heightmap_gradient(h, 0.2))(jnp.asarray(bumps, jnp.float32))
-    batched = jax.vmap(lambda s: zero_background(integrate_gradient(s, 0.2)))(slopes)
+    batched = jax.jit(jax.vmap(lambda s: zero_background(integrate_gradient(s, 0.2))))(slopes)
     for k in range(3):
-        single = zero_background(integrate_gradient(slopes[k], 0.2))
+        single = _integrate_anchored(slopes[k], 0.2)
         np.testing.assert_allclose(batched[k], single, atol=1e-5)
         assert np.abs(np.asarray(single) - bumps[k]).max() < 0.02  # peak height 1 mm
 
@@ -57,5 +61,5 @@ def test_zero_background_anchors_the_undeformed_gel():
 
 def test_gradients():
     slope = jnp.asarray(np.random.default_rng(3).normal(size=(5, 6, 2)), jnp.float32)
-    check_grads(lambda s: integrate_gradient(s, 0.5), (slope,), order=1, modes=["rev"],
+    check_grads(jax.jit(lambda s: integrate_gradient(s, 0.5)), (slope,), order=1, modes=["rev"],
                 atol=1e-2, rtol=1e-2)
