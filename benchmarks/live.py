@@ -54,7 +54,8 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default="bundled:features-tactile")
+    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0",
+                        help="feature encoder (the CLI default; bundled:features-tactile is the fast one)")
     parser.add_argument("--method", default="cti-icp-5")
     parser.add_argument("--frames", type=int, default=300, help="frames in the video (default 300)")
     parser.add_argument("--fps", type=float, default=30.0, help="the video's nominal frame rate")

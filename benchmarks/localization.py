@@ -94,7 +94,8 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/localization", help="simulated data cache")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default="bundled:features-tactile")
+    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0",
+                        help="feature encoder (the CLI default; bundled:features-tactile is the fast one)")
     parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N (default 5)")
     parser.add_argument("--calls", type=int, default=1000, help="timed localizations (default 1000)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries for accuracy")

@@ -5,7 +5,7 @@
 2. Tactile maps (section V): the mapping protocol on three household objects; every imprint's
    heightmap is *predicted* by the bundled model and placed by the kinematics.
 3. Localization (section VI): leave-one-out RANDOM / CTI / CTI-ICP-1 / CTI-ICP-5 with the
-   bundled feature encoder (Table III), with error histograms.
+   ImageNet EfficientNet-Lite0 features (Table III), with error histograms.
 4. Identification (section VII): each held-out touch is assigned to the object whose map holds
    the most similar imprint (confusion matrix).
 
