@@ -45,14 +45,11 @@ def imprint_figure(per_object: dict[str, dict], mm_per_px: float, path: str | Pa
         mm_per_px: the sensor's pixel pitch.
         path: output PNG.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
     names = list(per_object)
     columns = 2 * examples + 1
-    fig = plt.figure(figsize=(3.0 * columns, 2.8 * len(names)))
+    fig = Figure(figsize=(3.0 * columns, 2.8 * len(names)))
     for row, name in enumerate(names):
         records = per_object[name]
         contact_area = records["mask"].sum(axis=(1, 2))
@@ -82,5 +79,4 @@ def imprint_figure(per_object: dict[str, dict], mm_per_px: float, path: str | Pa
 
     with atomic_open(path, "wb") as handle:
         fig.savefig(handle, dpi=110, format="png")
-    plt.close(fig)
     return path

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
 
-def localization_histogram_figure(results: dict[str, dict], *, max_mm: float = 80.0, bin_mm: float = 5.0):
+def localization_histogram_figure(results: dict[str, dict], *, max_mm: float = 80.0, bin_mm: float = 5.0) -> Figure:
     """Histograms of the leave-one-out RMSE per object (one panel each), one colour per method.
 
     Args:
@@ -23,7 +20,8 @@ def localization_histogram_figure(results: dict[str, dict], *, max_mm: float = 8
     objects = list(results)
     columns = min(3, len(objects))
     rows = int(np.ceil(len(objects) / columns))
-    figure, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), squeeze=False)
+    figure = Figure(figsize=(4.2 * columns, 3.0 * rows))
+    axes = figure.subplots(rows, columns, squeeze=False)
     edges = np.arange(0.0, max_mm + bin_mm, bin_mm)
     for axis, name in zip(axes.ravel(), objects):
         for method, rmse in results[name].items():
@@ -40,14 +38,15 @@ def localization_histogram_figure(results: dict[str, dict], *, max_mm: float = 8
     return figure
 
 
-def map_size_figure(results: dict[str, dict[float, dict[str, float]]]):
+def map_size_figure(results: dict[str, dict[float, dict[str, float]]]) -> Figure:
     """Median RMSE against the fraction of touches in the map (paper Fig. 7).
 
     Args:
         results: ``{object: {fraction: {method: median RMSE (mm)}}}``.
     """
     objects = list(results)
-    figure, axes = plt.subplots(1, len(objects), figsize=(3.6 * len(objects), 3.0), squeeze=False)
+    figure = Figure(figsize=(3.6 * len(objects), 3.0))
+    axes = figure.subplots(1, len(objects), squeeze=False)
     for axis, name in zip(axes[0], objects):
         fractions = sorted(results[name])
         methods = list(results[name][fractions[0]])
@@ -62,12 +61,13 @@ def map_size_figure(results: dict[str, dict[float, dict[str, float]]]):
     return figure
 
 
-def confusion_figure(confusion: np.ndarray, object_ids) -> plt.Figure:
+def confusion_figure(confusion: np.ndarray, object_ids) -> Figure:
     """Identification confusion matrix (rows: true object, columns: identified), row-normalised."""
     confusion = np.asarray(confusion, float)
     rates = confusion / np.maximum(confusion.sum(axis=1, keepdims=True), 1)
     size = 1.0 + 0.8 * len(object_ids)
-    figure, axis = plt.subplots(figsize=(size + 1.5, size))
+    figure = Figure(figsize=(size + 1.5, size))
+    axis = figure.subplots()
     image = axis.imshow(rates, vmin=0, vmax=1, cmap="Blues")
     for i in range(len(object_ids)):
         for j in range(len(object_ids)):

@@ -1,0 +1,43 @@
+"""tactojax.viz: figures are plain matplotlib Figures that leave the caller's backend alone."""
+
+import subprocess
+import sys
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from tactojax.viz import confusion_figure, localization_histogram_figure, map_size_figure, save_png
+
+
+def test_importing_viz_keeps_the_backend_a_notebook_chose():
+    code = ("import matplotlib; matplotlib.use('svg'); import tactojax.viz; "
+            "tactojax.viz.confusion_figure([[1, 0], [0, 1]], ['a', 'b']); print(matplotlib.get_backend())")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "svg"
+
+
+def test_histogram_panels_bin_every_touch_and_save_a_png(tmp_path):
+    errors = {"a": {"cti": [1.0, 3.0, 200.0], "random": [50.0, 60.0]}, "b": {"cti": [7.0]}}
+    figure = localization_histogram_figure(errors, max_mm=80.0, bin_mm=5.0)
+    assert isinstance(figure, Figure)
+    axes = [axis for axis in figure.axes if axis.get_visible() and axis.axison]
+    assert [axis.get_title() for axis in axes] == ["a", "b"]
+    for axis, name in zip(axes, errors):
+        for patch, rmse in zip(axis.patches, errors[name].values()):  # one step outline per method
+            heights = np.diff(patch.get_xy()[:, 1])
+            assert np.isclose(np.abs(heights).sum() / 2, 100.0)  # percentages of touches sum to 100
+    path = save_png(figure, tmp_path / "out" / "histogram.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_confusion_labels_are_row_percentages():
+    figure = confusion_figure(np.array([[3, 1], [0, 2]]), ["a", "b"])
+    texts = [text.get_text() for text in figure.axes[0].texts]
+    assert texts == ["75", "25", "0", "100"]
+
+
+def test_map_size_figure_draws_one_curve_per_method():
+    results = {"a": {0.5: {"cti": 10.0, "cti-icp-5": 8.0}, 1.0: {"cti": 5.0, "cti-icp-5": 4.0}}}
+    axis = map_size_figure(results).axes[0]
+    assert [line.get_label() for line in axis.lines] == ["cti", "cti-icp-5"]
+    np.testing.assert_allclose(axis.lines[1].get_xydata(), [[50.0, 8.0], [100.0, 4.0]])
