@@ -54,8 +54,9 @@ class DepthwiseConv(nn.Module):
 
     The same parameters and result as ``nn.Conv(C, (k, k), strides, padding="SAME",
     feature_group_count=C, use_bias=False)`` (kernel ``(k, k, 1, C)``), computed as k^2
-    strided slices times per-channel weights: XLA fuses them into one loop, where a grouped
-    convolution on CPU runs about ten times slower.
+    strided slices times per-channel weights, which XLA fuses into one loop. On CPU this makes
+    the whole EfficientNet-Lite0 6.4x faster than with grouped convolutions (140 -> 22 ms per
+    168 x 224 image on 2 cores).
 
     Attributes:
         kernel_size: k.
