@@ -6,7 +6,12 @@ import sys
 import numpy as np
 from matplotlib.figure import Figure
 
-from tactojax.viz import confusion_figure, localization_histogram_figure, map_size_figure, save_png
+from tactojax.viz import (
+    confusion_figure,
+    localization_histogram_figure,
+    map_size_figure,
+    save_png,
+)
 
 
 def test_importing_viz_keeps_the_backend_a_notebook_chose():
