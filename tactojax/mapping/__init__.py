@@ -12,6 +12,7 @@ from tactojax.mapping._map import TactileMap as TactileMap
 from tactojax.mapping._noise import NOISE_LEVELS as NOISE_LEVELS
 from tactojax.mapping._noise import KinematicNoise as KinematicNoise
 from tactojax.mapping._noise import perturb_kinematics as perturb_kinematics
+from tactojax.mapping._recover import fit_shape_to_clouds as fit_shape_to_clouds
 from tactojax.mapping._recover import fit_tactile_map as fit_tactile_map
 from tactojax.mapping._recover import shape_fit_clouds as shape_fit_clouds
 from tactojax.mapping._reliable import depth_observed as depth_observed
@@ -32,6 +33,7 @@ __all__ = [
     "build_tactile_map",
     "depth_observed",
     "fit_shape",
+    "fit_shape_to_clouds",
     "fit_tactile_map",
     "membrane_skirt",
     "observed_contact",

@@ -124,10 +124,36 @@ def fit_tactile_map(
         The :class:`ShapeFit`, in the map (object) frame.
     """
     depth_points, contact_points = shape_fit_clouds(tactile_map, refine_contact=refine_contact)
+    if len(depth_points) == 0 and len(contact_points) == 0:
+        raise ValueError(f"the map of {tactile_map.object_id} has no contact points to fit")
+    return fit_shape_to_clouds(depth_points, contact_points, kind, voxel_mm=voxel_mm,
+                               robust_scale_mm=robust_scale_mm, pad_to=pad_to)
+
+
+def fit_shape_to_clouds(
+    depth_points: np.ndarray,
+    contact_points: np.ndarray,
+    kind: str,
+    *,
+    voxel_mm: float = 0.5,
+    robust_scale_mm: float = 0.5,
+    pad_to: int | None = None,
+) -> ShapeFit:
+    """:func:`fit_tactile_map` from the two clouds of :func:`shape_fit_clouds`, already drawn.
+
+    Args:
+        depth_points: (N, 3) points whose depth is trusted, mm, map frame (the surface is fitted
+            to them, voxel-downsampled); when empty, the contact points are fitted instead.
+        contact_points: (M, 3) contact points, mm, map frame (where the surface stops).
+        kind, voxel_mm, robust_scale_mm, pad_to: as :func:`fit_tactile_map`.
+
+    Returns:
+        The :class:`ShapeFit`, in the map (object) frame.
+    """
     if len(depth_points) == 0:  # no depth observed anywhere: fit the contact points after all
         depth_points = contact_points
     if len(depth_points) == 0:
-        raise ValueError(f"the map of {tactile_map.object_id} has no contact points to fit")
+        raise ValueError("no contact points to fit")
     points, _ = voxel_downsample(depth_points, np.zeros_like(depth_points), voxel_mm)
     size = _bucket(len(points)) if pad_to is None else pad_to
     if size < len(points):

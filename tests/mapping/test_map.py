@@ -144,7 +144,8 @@ def test_observed_contact_matches_a_scipy_reference():
 
 
 def test_shape_fit_clouds_hold_the_refined_contact_of_the_map(cylinder_map):
-    from tactojax.mapping import depth_observed, fit_tactile_map, membrane_skirt, shape_fit_clouds
+    from tactojax.mapping import (depth_observed, fit_shape_to_clouds, fit_tactile_map, membrane_skirt,
+                                  shape_fit_clouds)
 
     depth, contact = shape_fit_clouds(cylinder_map)
     plain_depth, plain_contact = shape_fit_clouds(cylinder_map, refine_contact=False)
@@ -167,3 +168,6 @@ def test_shape_fit_clouds_hold_the_refined_contact_of_the_map(cylinder_map):
     fit = fit_tactile_map(cylinder_map, "cylinder")
     assert bool(fit.converged)
     assert abs(float(fit.parameters["radius_mm"]) - 25.0) < 0.02 * 25.0
+    # The same fit from the clouds drawn above (how a caller that also measures them avoids drawing twice).
+    from_clouds = fit_shape_to_clouds(depth, contact, "cylinder")
+    assert float(from_clouds.parameters["radius_mm"]) == float(fit.parameters["radius_mm"])
