@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import flax.linen as nn
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -71,17 +72,13 @@ class DepthwiseConv(nn.Module):
         k, stride = self.kernel_size, self.strides
         channels = x.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, channels), x.dtype)
-        padding, size = [], []
-        for length in x.shape[1:3]:
-            out = -(-length // stride)
-            total = max((out - 1) * stride + k - length, 0)
-            padding.append((total // 2, total - total // 2))
-            size.append(out)
+        padding = jax.lax.padtype_to_pads(x.shape[1:3], (k, k), (stride, stride), "SAME")  # nn.Conv's own rule
         padded = jnp.pad(x, ((0, 0), *padding, (0, 0)))
+        rows, cols = ((length - k) // stride + 1 for length in padded.shape[1:3])
         result = None
         for i in range(k):
             for j in range(k):
-                window = padded[:, i:i + (size[0] - 1) * stride + 1:stride, j:j + (size[1] - 1) * stride + 1:stride]
+                window = padded[:, i:i + (rows - 1) * stride + 1:stride, j:j + (cols - 1) * stride + 1:stride]
                 term = window * kernel[i, j, 0]
                 result = term if result is None else result + term
         return result
