@@ -47,6 +47,8 @@ def imprint_figure(per_object: dict[str, dict], mm_per_px: float, path: str | Pa
     """
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
+    from tactojax.viz._save import save_png
+
     names = list(per_object)
     columns = 2 * examples + 1
     fig = Figure(figsize=(3.0 * columns, 2.8 * len(names)))
@@ -72,11 +74,4 @@ def imprint_figure(per_object: dict[str, dict], mm_per_px: float, path: str | Pa
         ax.set_ylabel("y (mm)", fontsize=7)
         ax.set_zlabel("z (mm)", fontsize=7)
         ax.set_box_aspect(np.ptp(cloud, axis=0) + 1e-3 if len(cloud) else (1, 1, 1))
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from tactojax.io._atomic import atomic_open
-
-    with atomic_open(path, "wb") as handle:
-        fig.savefig(handle, dpi=110, format="png")
-    return path
+    return save_png(fig, path, dpi=110)
