@@ -235,6 +235,8 @@ def localize(
         :class:`PoseEstimate`; never NaN (``converged`` False when it failed).
     """
     view = as_localization_map(tactile_map)
-    return _localize(key, view, canonical_query(query), jnp.asarray(exclude, jnp.int32),
-                     jnp.asarray(max_opening_difference_mm, jnp.float32), parse_method(method),
-                     settings, search, points_per_query)
+    # NumPy scalars, not jnp.asarray: they travel with the call instead of costing a device
+    # dispatch each (about 0.3 ms per touch on CPU), and are strongly typed (no recompilation).
+    exclude = exclude.astype(jnp.int32) if isinstance(exclude, jax.Array) else np.int32(exclude)
+    return _localize(key, view, canonical_query(query), exclude, np.float32(max_opening_difference_mm),
+                     parse_method(method), settings, search, points_per_query)
