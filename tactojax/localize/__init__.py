@@ -54,6 +54,7 @@ from tactojax.localize._retrieval import cosine_similarities as cosine_similarit
 from tactojax.localize._retrieval import rank_imprints as rank_imprints
 from tactojax.localize._search import SearchSettings as SearchSettings
 from tactojax.localize._search import search_and_register as search_and_register
+from tactojax.localize._search import verification_score as verification_score
 from tactojax.localize._solvers import SOLVERS as SOLVERS
 from tactojax.localize._solvers import pose_step as pose_step
 
@@ -104,6 +105,7 @@ __all__ = [
     "register_multistart",
     "robust_weights",
     "search_and_register",
+    "verification_score",
     "selection_cost",
     "surface_lookup",
 ]

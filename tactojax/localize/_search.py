@@ -88,6 +88,39 @@ def spatial_neighbours(
     return imprints_near(view, view.centres[index], n, available)
 
 
+def verification_score(
+    view: LocalizationMap,
+    query_heightmap: Float[Array, "H W"],
+    query_mask: Bool[Array, "H W"],
+    points: Float[Array, "P 3"],
+    points_valid: Bool[Array, "P"],
+    T_object_sensor: jaxlie.SE3,
+    available: Bool[Array, "K"],
+    settings: SearchSettings = SearchSettings(),
+) -> Float[Array, ""]:
+    """How well a pose of the query agrees with the map around the place it claims (higher is better).
+
+    The final check of :func:`search_and_register` (without its feature-similarity tie-break):
+    the query placed at ``T_object_sensor`` against the ``settings.verify_neighbours`` available
+    imprints nearest to it, agreement minus ``settings.violation_weight`` times the free-space
+    violations in both directions (:func:`consistency`). At most 1 (every point on the surface,
+    none in free space).
+
+    Args:
+        view: the map.
+        query_heightmap, query_mask: (H, W) the query imprint.
+        points: (P, 3) query points, query sensor frame, mm; points_valid (P,).
+        T_object_sensor: the pose to check.
+        available: (K,) imprints that may be checked against (the map minus any held-out one).
+        settings: search parameters.
+    """
+    count = jnp.maximum(jnp.sum(points_valid), 1)
+    centroid = jnp.sum(jnp.where(points_valid[:, None], points, 0.0), axis=0) / count
+    around, around_valid = imprints_near(view, T_object_sensor @ centroid, settings.verify_neighbours, available)
+    check = consistency(view, around, around_valid, query_heightmap, query_mask, points, points_valid, T_object_sensor)
+    return check.agreement - settings.violation_weight * (check.violation + check.reverse_violation)
+
+
 def search_and_register(
     view: LocalizationMap,
     query_heightmap: Float[Array, "H W"],
@@ -140,16 +173,10 @@ def search_and_register(
     _, best = jax.lax.top_k(scores, settings.refine)
     chosen = source[best]
 
-    count = jnp.maximum(jnp.sum(points_valid), 1)
-    centroid = jnp.sum(jnp.where(points_valid[:, None], points, 0.0), axis=0) / count
-
     def refine(T_start, m):
         estimate = icp(view, neighbours[m], neighbours_valid[m], points, points_valid, T_start, icp_settings)
-        around, around_valid = imprints_near(view, estimate.T_object_sensor @ centroid, settings.verify_neighbours,
-                                             available)
-        check = consistency(view, around, around_valid, query_heightmap, query_mask, points, points_valid,
-                            estimate.T_object_sensor)
-        score = (check.agreement - settings.violation_weight * (check.violation + check.reverse_violation)
+        score = (verification_score(view, query_heightmap, query_mask, points, points_valid, estimate.T_object_sensor,
+                                    available, settings)
                  + settings.similarity_weight * retrieved_similarity[m])
         return estimate.replace(imprint_index=retrieved[m].astype(jnp.int32)), score
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from tactojax.localize import LocalizationMap, Query, consistency, query_points
+from tactojax.localize import LocalizationMap, Query, SearchSettings, consistency, query_points, verification_score
 from tactojax.localize._correspondences import nearest_correspondences
 
 
@@ -30,6 +30,31 @@ def test_true_pose_agrees_and_wrong_poses_do_not(bumps_map, synthetic):
     # 1 mm too deep: the surfaces no longer agree.
     deeper = check(T_true @ jaxlie.SE3.from_translation(jnp.array([0.0, 0.0, 1.0])))
     assert float(deeper.agreement) < 0.5 * float(true.agreement)
+
+
+def test_verification_score_is_the_consistency_with_the_imprints_around_the_pose(bumps_map, synthetic):
+    view = LocalizationMap.from_tactile_map(bumps_map)
+    T_true = synthetic.sensor_pose(1.3, -0.7, 5.0)
+    heightmap, mask = synthetic.render(synthetic.bumps, T_true)
+    points, valid = query_points(Query(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask),
+                                       feature=jnp.zeros(48), opening=jnp.float32(20.0)), view.mm_per_px, 96)
+    available = jnp.ones(len(view), bool).at[12].set(False)  # one imprint held out
+    settings = SearchSettings(verify_neighbours=4, violation_weight=3.0)
+    score = jax.jit(lambda T: verification_score(view, jnp.asarray(heightmap), jnp.asarray(mask), points, valid, T,
+                                                 available, settings))
+
+    # Reference: the four available imprints whose contact centres are nearest to the placed
+    # query's centroid, found in NumPy.
+    centres, points_np, valid_np = np.asarray(view.centres), np.asarray(points), np.asarray(valid)
+    for T in (T_true, T_true @ jaxlie.SE3.from_translation(jnp.array([3.0, 0.0, 0.0]))):
+        centroid = np.asarray(T @ jnp.asarray(points_np[valid_np].mean(axis=0)))
+        distance = np.where(np.asarray(available), np.linalg.norm(centres - centroid, axis=1), np.inf)
+        nearest = jnp.asarray(np.argsort(distance)[:4])
+        check = consistency(view, nearest, jnp.ones(4, bool), jnp.asarray(heightmap), jnp.asarray(mask), points,
+                            valid, T)
+        expected = check.agreement - 3.0 * (check.violation + check.reverse_violation)
+        np.testing.assert_allclose(score(T), expected, atol=1e-6)
+    assert float(score(T_true)) > 0.85
 
 
 def test_nearest_correspondences_match_numpy(bumps_map):
