@@ -5,7 +5,9 @@ sensor frame of a stored imprint, lies above the pixel (x / pitch, y / pitch); t
 heightmap gives the touched surface there, (x, y, -h(x, y)), and its slope the surface normal.
 Nothing is built at query time: a correspondence costs one 2 x 2 gather in a stored heightmap
 (bilinear height, its exact slope), and the residual is a smooth function of the point inside
-a pixel cell.
+a pixel cell. ICP, which looks up the same few candidates every iteration, first copies them
+into :func:`candidate_surfaces` (contact marked in the heights), so that each lookup is one
+gather instead of two.
 
 Nearest-point association (:func:`nearest_correspondences`): the classical ICP's nearest
 stored contact point in 3D, brute force over the candidates' sampled points.
@@ -22,15 +24,24 @@ from jaxtyping import Array, Bool, Float, Int
 from tactojax.localize._map import LocalizationMap
 
 
+def matvec(matrix: Float[Array, "*batch 3 3"], vector: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """``matrix @ vector`` (broadcasting) written out as three products and two sums.
+
+    On CPU this fuses with the neighbouring element-wise work, where a matrix product or a
+    reduction of these small shapes would be a kernel of its own (and jaxlie's per-point
+    quaternion product is dearer still).
+    """
+    return sum(matrix[..., i] * vector[..., None, i] for i in range(3))
+
+
 def transform_points(T: jaxlie.SE3, points: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
-    """``T @ points`` for one transform and many points, as one matrix product (cheaper on CPU
-    than jaxlie's per-point quaternion product)."""
-    return points @ T.rotation().as_matrix().T + T.translation()
+    """``T @ points`` for one transform and many points (see :func:`matvec`)."""
+    return matvec(T.rotation().as_matrix(), points) + T.translation()
 
 
 def surface_lookup(
     heightmaps: Float[Array, "K H W"],
-    masks: Bool[Array, "K H W"],
+    masks: Bool[Array, "K H W"] | None,
     imprint: Int[Array, "*batch"],
     p_sensor: Float[Array, "*batch 3"],
     mm_per_px: float,
@@ -41,7 +52,8 @@ def surface_lookup(
 
     Args:
         heightmaps: (K, H, W) stored heightmaps, mm.
-        masks: (K, H, W) stored contact masks.
+        masks: (K, H, W) stored contact masks; None: ``heightmaps`` are NaN where not in
+            contact (:func:`candidate_surfaces`), and one gather does.
         imprint: (...) which of the K imprints, per point.
         p_sensor: (..., 3) the points in those imprints' sensor frames, mm (x, y are read).
         mm_per_px: pixel pitch, mm.
@@ -56,12 +68,15 @@ def surface_lookup(
 
 def pixel_lookup(
     heightmaps: Float[Array, "K H W"],
-    masks: Bool[Array, "K H W"],
+    masks: Bool[Array, "K H W"] | None,
     imprint: Int[Array, "*batch"],
     p_sensor: Float[Array, "*batch 3"],
     mm_per_px: float,
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch 2"], Bool[Array, "*batch"], Bool[Array, "*batch"]]:
-    """:func:`surface_lookup`, also returning ``inside`` (the point falls inside the image)."""
+    """:func:`surface_lookup`, also returning ``inside`` (the point falls inside the image).
+
+    ``masks`` None: ``heightmaps`` are NaN where not in contact (:func:`candidate_surfaces`).
+    """
     count, height_px, width_px = heightmaps.shape
     col = p_sensor[..., 0] / mm_per_px + (width_px - 1) / 2.0
     row = p_sensor[..., 1] / mm_per_px + (height_px - 1) / 2.0
@@ -71,17 +86,37 @@ def pixel_lookup(
     col0 = jax.lax.stop_gradient(jnp.clip(jnp.floor(col), 0, width_px - 2))
     row0 = jax.lax.stop_gradient(jnp.clip(jnp.floor(row), 0, height_px - 2))
     fc, fr = col - col0, row - row0
-    base = (imprint * height_px + row0.astype(jnp.int32)) * width_px + col0.astype(jnp.int32)
-    index = base[..., None] + jnp.array([0, 1, width_px, width_px + 1], jnp.int32)
-    h = heightmaps.reshape(-1)[index]  # (..., 4): (r0, c0), (r0, c1), (r1, c0), (r1, c1)
-    contact = jnp.all(masks.reshape(-1)[index], axis=-1)
-    h00, h01, h10, h11 = h[..., 0], h[..., 1], h[..., 2], h[..., 3]
+    cell = (imprint, row0.astype(jnp.int32), col0.astype(jnp.int32))
+    h = _cells(heightmaps, *cell)
+    if masks is None:
+        contact = jnp.all(jnp.isfinite(h), axis=(-2, -1))
+        h = jnp.where(contact[..., None, None], h, 0.0)  # no NaN in the values (or the gradients)
+    else:
+        contact = jnp.all(_cells(masks, *cell), axis=(-2, -1))
+    h00, h01, h10, h11 = h[..., 0, 0], h[..., 0, 1], h[..., 1, 0], h[..., 1, 1]
     top = h00 + (h01 - h00) * fc
     bottom = h10 + (h11 - h10) * fc
     value = top + (bottom - top) * fr
     slope_x = ((h01 - h00) * (1 - fr) + (h11 - h10) * fr) / mm_per_px
     slope_y = (bottom - top) / mm_per_px
     return value, jnp.stack([slope_x, slope_y], axis=-1), inside & contact, inside
+
+
+def _cells(
+    images: Array, imprint: Int[Array, "*batch"], row: Int[Array, "*batch"], col: Int[Array, "*batch"]
+) -> Array:
+    """The 2 x 2 pixel cells ``images[imprint, row:row + 2, col:col + 2]``, shape (..., 2, 2).
+
+    One gather of 2 x 2 windows from the (K * H, W) stacked rows: cheaper on CPU than four
+    gathers of single pixels. ``row`` must lie in [0, H - 2] and ``col`` in [0, W - 2]; the
+    imprint index is clipped to [0, K - 1], so every window is in bounds.
+    """
+    count, height_px, width_px = images.shape
+    corner = jnp.stack([jnp.clip(imprint, 0, count - 1) * height_px + row, col], axis=-1)
+    dimensions = jax.lax.GatherDimensionNumbers(offset_dims=(corner.ndim - 1, corner.ndim),
+                                                collapsed_slice_dims=(), start_index_map=(0, 1))
+    return jax.lax.gather(images.reshape(count * height_px, width_px), corner, dimensions, (2, 2),
+                          mode="promise_in_bounds")
 
 
 def _normal_from_slope(slope: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
@@ -111,6 +146,11 @@ def candidate_poses(view: LocalizationMap, candidates: Int[Array, "N"]) -> jaxli
     return jax.tree.map(lambda x: x[candidates], view.T_object_sensor).inverse()
 
 
+def candidate_surfaces(view: LocalizationMap, candidates: Int[Array, "N"]) -> Float[Array, "N H W"]:
+    """The candidates' heightmaps (mm), NaN where not in contact: one array to look up."""
+    return jnp.where(view.masks[candidates], view.heightmaps[candidates], jnp.nan)
+
+
 def find_correspondences(
     view: LocalizationMap,
     candidates: Int[Array, "N"],
@@ -120,6 +160,7 @@ def find_correspondences(
     max_distance_mm: float,
     *,
     T_sensor_candidate: jaxlie.SE3 | None = None,
+    surfaces: Float[Array, "N H W"] | None = None,
 ) -> Correspondences:
     """Match every point to the candidate imprint whose surface is nearest (point-to-plane).
 
@@ -135,17 +176,23 @@ def find_correspondences(
         points_valid: (P,) which query points are real.
         max_distance_mm: correspondences farther than this are rejected, mm.
         T_sensor_candidate: (N,) inverted candidate poses, if already computed.
+        surfaces: :func:`candidate_surfaces`, if already computed (cheaper lookups; without
+            them the points are looked up in the map's own heightmaps and masks).
 
     Returns:
         :class:`Correspondences` of the P points.
     """
     if T_sensor_candidate is None:
         T_sensor_candidate = candidate_poses(view, candidates)
-    # (P, N) sensor-frame points: rotate and translate with explicit matrices (one einsum).
+    # (P, N) sensor-frame points: rotate and translate with explicit matrices.
     rotation = T_sensor_candidate.rotation().as_matrix()  # (N, 3, 3)
-    p_sensor = jnp.einsum("nij,pj->pni", rotation, points_object) + T_sensor_candidate.translation()[None]
-    imprint = jnp.broadcast_to(candidates[None, :], p_sensor.shape[:2])
-    height, slope, in_contact = surface_lookup(view.heightmaps, view.masks, imprint, p_sensor, view.mm_per_px)
+    p_sensor = matvec(rotation, points_object[:, None]) + T_sensor_candidate.translation()
+    if surfaces is None:
+        heightmaps, masks, imprint = view.heightmaps, view.masks, candidates
+    else:
+        heightmaps, masks, imprint = surfaces, None, jnp.arange(candidates.shape[0])
+    imprint = jnp.broadcast_to(imprint[None, :], p_sensor.shape[:2])
+    height, slope, in_contact = surface_lookup(heightmaps, masks, imprint, p_sensor, view.mm_per_px)
     residual = (p_sensor[..., 2] + height) * -jax.lax.rsqrt(1.0 + jnp.sum(slope**2, axis=-1))
     ok = (in_contact & candidate_valid[None, :] & points_valid[:, None]
           & (jnp.abs(residual) <= max_distance_mm))
@@ -155,10 +202,10 @@ def find_correspondences(
     height_best = jnp.take_along_axis(height, best[:, None], axis=1)[:, 0]
     normal = _normal_from_slope(slope_best)
     target = jnp.concatenate([p_best[:, :2], -height_best[:, None]], axis=-1)
-    rotation_best, translation_best = rotation[best], T_sensor_candidate.translation()[best]
     # Back to the object frame: R^T (x - t).
-    target_object = jnp.einsum("pji,pj->pi", rotation_best, target - translation_best)
-    normal_object = jnp.einsum("pji,pj->pi", rotation_best, normal)
+    inverse_best, translation_best = jnp.swapaxes(rotation, -1, -2)[best], T_sensor_candidate.translation()[best]
+    target_object = matvec(inverse_best, target - translation_best)
+    normal_object = matvec(inverse_best, normal)
     return Correspondences(candidate=best, residual=jnp.take_along_axis(residual, best[:, None], axis=1)[:, 0],
                            target=target_object, normal=normal_object, valid=jnp.any(ok, axis=1))
 

@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, Bool, Float, Int
 
-from tactojax.localize._correspondences import (candidate_poses, find_correspondences, nearest_correspondences,
-                                                 transform_points)
+from tactojax.localize._correspondences import (candidate_poses, candidate_surfaces, find_correspondences, matvec,
+                                                 nearest_correspondences, transform_points)
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._pose import PoseEstimate
 from tactojax.localize._solvers import SOLVERS, pose_step
@@ -84,10 +84,33 @@ def robust_weights(residual: Float[Array, "P"], valid: Bool[Array, "P"], setting
     return jnp.where(valid, weight, 0.0)
 
 
-def _about(T: jaxlie.SE3, center: Float[Array, "3"], delta: Float[Array, "6"]) -> jaxlie.SE3:
-    """``T`` moved by the tangent step ``delta`` expressed at ``center`` (object frame)."""
-    shift = jaxlie.SE3.from_translation(center)
-    return shift @ jaxlie.SE3.exp(delta) @ shift.inverse() @ T
+def _exp(delta: Float[Array, "6"]) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
+    """``jaxlie.SE3.exp(delta)`` as a 3 x 3 rotation matrix and a translation (mm).
+
+    ``delta`` is (translation, rotation vector), as in jaxlie. Rodrigues' formulas,
+    ``R = I + a K + b K^2`` and ``t = (I + b K + c K^2) translation`` with ``K`` the
+    cross-product matrix of the rotation vector, compile to a few fused kernels where
+    quaternion algebra takes dozens of scalar ones. Near zero, a, b and c come from their
+    Taylor series (no 0 / 0).
+    """
+    translation, omega = delta[:3], delta[3:]
+    angle_squared = jnp.sum(omega**2)
+    small = angle_squared < 1e-2
+    safe = jnp.where(small, 1.0, angle_squared)  # keeps the branch not taken (and its gradient) finite
+    angle = jnp.sqrt(safe)
+
+    def series(c0, c2, c4):  # c0 - c2 angle^2 + c4 angle^4
+        return c0 - angle_squared * (c2 - angle_squared * c4)
+
+    a = jnp.where(small, series(1.0, 1 / 6, 1 / 120), jnp.sin(angle) / angle)
+    b = jnp.where(small, series(1 / 2, 1 / 24, 1 / 720), (1.0 - jnp.cos(angle)) / safe)
+    c = jnp.where(small, series(1 / 6, 1 / 120, 1 / 5040), (angle - jnp.sin(angle)) / (safe * angle))
+    x, y, z = omega
+    zero = jnp.zeros_like(x)
+    skew = jnp.array([[zero, -z, y], [z, zero, -x], [-y, x, zero]])
+    identity = jnp.eye(3, dtype=delta.dtype)
+    skew_squared = omega[:, None] * omega[None, :] - angle_squared * identity
+    return identity + a * skew + b * skew_squared, matvec(identity + b * skew + c * skew_squared, translation)
 
 
 def fit_quality(
@@ -137,6 +160,7 @@ def icp(
         :class:`PoseEstimate` (``imprint_index`` -1: the caller knows where it started).
     """
     T_sensor_candidate = candidate_poses(view, candidates)
+    surfaces = candidate_surfaces(view, candidates)
     count = jnp.maximum(jnp.sum(points_valid), 1)
     centroid_sensor = jnp.sum(jnp.where(points_valid[:, None], points, 0.0), axis=0) / count
     spread = jnp.sqrt(jnp.sum(jnp.where(points_valid, jnp.sum((points - centroid_sensor) ** 2, -1), 0.0)) / count)
@@ -149,17 +173,18 @@ def icp(
         return residual_fn
 
     def iteration(carry, _):
-        T, done, iterations = carry
-        moved = transform_points(T, points)
+        rotation, translation, done, iterations = carry  # the pose, as matrices (see _exp)
+        moved = matvec(rotation, points) + translation
         if settings.association == "nearest":
             matches = nearest_correspondences(view, candidates, candidate_valid, moved, points_valid,
                                               settings.max_distance_mm)
         else:
             matches = find_correspondences(view, candidates, candidate_valid, moved, points_valid,
-                                           settings.max_distance_mm, T_sensor_candidate=T_sensor_candidate)
+                                           settings.max_distance_mm, T_sensor_candidate=T_sensor_candidate,
+                                           surfaces=surfaces)
         weight = robust_weights(matches.residual, matches.valid, settings)
         enough = jnp.sum(weight > 0) >= settings.min_correspondences
-        center = T @ centroid_sensor
+        center = matvec(rotation, centroid_sensor) + translation
         sqrt_weight = jnp.sqrt(weight)
         residual_fn = residuals_at(moved, center, matches, sqrt_weight)
         # d/d(delta) of n . (exp(delta) (x - c) + c - p) at 0: [n, (x - c) x n].
@@ -172,14 +197,21 @@ def icp(
         move = jnp.linalg.norm(delta[:3]) + radius * jnp.linalg.norm(delta[3:])
         delta = delta * jnp.minimum(1.0, settings.max_step_mm / jnp.maximum(move, 1e-12))
         move = jnp.minimum(move, settings.max_step_mm)
-        T_next = _about(T, center, delta)
-        T_next = jax.tree.map(lambda new, old: jnp.where(done, old, new), T_next, T)
+        # The step is taken about `center`: x -> R_step (x - c) + c + t_step, after the pose.
+        step_rotation, step_translation = _exp(delta)
+        rotation = jnp.where(done, rotation, step_rotation @ rotation)
+        translation = jnp.where(done, translation,
+                                matvec(step_rotation, translation - center) + center + step_translation)
         iterations = iterations + jnp.where(done, 0, 1)
         done = done | (move < settings.tolerance_mm) | ~enough
-        return (T_next, done, iterations), None
+        return (rotation, translation, done, iterations), None
 
-    init = (T_start, jnp.bool_(False), jnp.int32(0))
-    (T, done, iterations), _ = jax.lax.scan(iteration, init, None, length=settings.iterations)
+    init = (T_start.rotation().as_matrix(), T_start.translation(), jnp.bool_(False), jnp.int32(0))
+    (rotation, translation, done, iterations), _ = jax.lax.scan(iteration, init, None, length=settings.iterations)
+    # Back to a quaternion, on the start's side (q and -q are the same rotation).
+    quaternion = jaxlie.SO3.from_matrix(rotation).wxyz
+    quaternion = jnp.where(quaternion @ T_start.rotation().wxyz < 0, -quaternion, quaternion)
+    T = jaxlie.SE3(jnp.concatenate([quaternion, translation]))
     finite = jnp.all(jnp.isfinite(T.wxyz_xyz))
     T = jax.tree.map(lambda a, b: jnp.where(finite, a, b), T, T_start)
     T = jaxlie.SE3(T.wxyz_xyz.at[:4].set(T.wxyz_xyz[:4] / jnp.linalg.norm(T.wxyz_xyz[:4])))

@@ -21,48 +21,41 @@ SOLVERS = ("gauss-newton", "levenberg-marquardt")
 ResidualFunction = Callable[[Float[Array, "6"]], Float[Array, "P"]]
 
 
-def _cholesky(matrix: Float[Array, "n n"]) -> list[list]:
-    """Lower Cholesky factor as nested lists of scalars (unrolled: n is small and static)."""
+def _eliminate(matrix: Float[Array, "n n"], vectors: Float[Array, "n m"]) -> Float[Array, "n m"]:
+    """``matrix^-1 vectors`` by Gauss-Jordan elimination without pivoting (``matrix``
+    symmetric positive definite), unrolled: n is small and static.
+
+    Each step updates the whole augmented matrix at once, so the 6 x 6 normal equations take
+    six small fused kernels (a scalar Cholesky factorisation and substitution take dozens).
+    """
     n = matrix.shape[-1]
-    lower = [[None] * n for _ in range(n)]
-    for j in range(n):
-        diagonal = matrix[j, j] - sum((lower[j][k] ** 2 for k in range(j)), 0.0)
-        lower[j][j] = jnp.sqrt(jnp.maximum(diagonal, jnp.finfo(matrix.dtype).tiny))
-        for i in range(j + 1, n):
-            lower[i][j] = (matrix[i, j] - sum((lower[i][k] * lower[j][k] for k in range(j)), 0.0)) / lower[j][j]
-    return lower
-
-
-def _substitute(lower: list[list], vector: Float[Array, "n"]) -> Float[Array, "n"]:
-    """``(L L^T)^-1 vector`` by forward then backward substitution."""
-    n = len(lower)
-    forward = []
-    for i in range(n):
-        forward.append((vector[i] - sum((lower[i][k] * forward[k] for k in range(i)), 0.0)) / lower[i][i])
-    solution = [None] * n
-    for i in reversed(range(n)):
-        solution[i] = (forward[i] - sum((lower[k][i] * solution[k] for k in range(i + 1, n)), 0.0)) / lower[i][i]
-    return jnp.stack(solution)
+    augmented = jnp.concatenate([matrix, vectors], axis=1)
+    row = jnp.arange(n)[:, None]
+    for k in range(n):
+        pivot = augmented[k] / augmented[k, k]
+        augmented = jnp.where(row == k, pivot, augmented - augmented[:, k:k + 1] * pivot)
+    return augmented[:, n:]
 
 
 @jax.custom_jvp
 def solve_positive_definite(matrix: Float[Array, "n n"], vector: Float[Array, "n"]) -> Float[Array, "n"]:
-    """``matrix^-1 vector`` for a small symmetric positive definite matrix (unrolled Cholesky).
+    """``matrix^-1 vector`` for a small symmetric positive definite matrix (:func:`_eliminate`).
 
-    For the 6 x 6 normal equations this fuses into a few element-wise kernels: cheaper to run
-    and to compile than a LAPACK call on CPU. Its derivative reuses the factor (d x =
-    A^-1 (d b - d A x)), so differentiating ICP never differentiates the factorisation.
+    Cheaper to run and to compile than a LAPACK call on CPU for the 6 x 6 normal equations.
+    Its derivative goes through the inverse (d x = A^-1 (d b - d A x)), so differentiating
+    ICP never differentiates the elimination.
     """
-    return _substitute(_cholesky(matrix), vector)
+    return _eliminate(matrix, vector[:, None])[:, 0]
 
 
 @solve_positive_definite.defjvp
 def _solve_positive_definite_jvp(primals, tangents):
     matrix, vector = primals
     d_matrix, d_vector = tangents
-    lower = _cholesky(matrix)
-    solution = _substitute(lower, vector)
-    return solution, _substitute(lower, d_vector - d_matrix @ solution)
+    n = matrix.shape[-1]
+    inverse_and_solution = _eliminate(matrix, jnp.concatenate([jnp.eye(n, dtype=matrix.dtype), vector[:, None]], 1))
+    inverse, solution = inverse_and_solution[:, :n], inverse_and_solution[:, n]
+    return solution, inverse @ (d_vector - d_matrix @ solution)
 
 
 def gauss_newton_step(
