@@ -30,15 +30,8 @@ from tqdm.auto import tqdm
 from tactojax.features import encode_images
 from tactojax.io import load_tactile_map, resolve_encoder
 from tactojax.localize import (
-    LocalizationMap,
-    SearchSettings,
-    cloud_rmse,
-    evaluate_localization,
-    localize,
-    map_query,
-    query_points,
-    rank_imprints,
-    verification_score,
+    MAX_OPENING_DIFFERENCE_MM, LocalizationMap, SearchSettings, closest_imprints, cloud_rmse, evaluate_localization,
+    localize, map_query, query_points, verification_score,
 )
 
 try:  # run as ``python benchmarks/localization_ceiling.py`` or as a module
@@ -66,12 +59,7 @@ def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) 
     count = len(view)
     settings = SearchSettings()
     method = f"cti-search-{n}"
-
-    @jax.jit
-    def retrieved(query, exclude):
-        indices, _, valid = rank_imprints(view.features @ query.feature, view.openings, view.imprint_valid,
-                                          query.opening, min(max(recall_at), count), exclude=exclude)
-        return indices, valid
+    retrieve = min(max(recall_at), count)
 
     @jax.jit
     def scores(query, exclude, T_estimate, T_true):
@@ -87,8 +75,10 @@ def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) 
     for index in tqdm(queries.tolist(), desc=f"{tactile_map.object_id} {method}", unit="touch"):
         query = map_query(view, index)
         rmse = pose_rmse_to_every_imprint(tactile_map, view, index)
-        indices, valid = jax.device_get(retrieved(query, index))
-        eligible = (np.asarray(view.imprint_valid) & (np.abs(np.asarray(view.openings) - float(query.opening)) < 2.0)
+        indices, _, valid = jax.device_get(closest_imprints(view.features, view.openings, view.imprint_valid,
+                                                            query.feature, query.opening, retrieve, exclude=index))
+        eligible = (np.asarray(view.imprint_valid)
+                    & (np.abs(np.asarray(view.openings) - float(query.opening)) < MAX_OPENING_DIFFERENCE_MM)
                     & (np.arange(count) != index))
         best = rmse[eligible].min() if eligible.any() else np.inf
         near = (rmse[indices] <= best + NEAR_MM) & valid

@@ -34,6 +34,12 @@ def matvec(matrix: Float[Array, "*batch 3 3"], vector: Float[Array, "*batch 3"])
     return sum(matrix[..., i] * vector[..., None, i] for i in range(3))
 
 
+def valid_centroid(points: Float[Array, "P 3"], valid: Bool[Array, "P"]) -> Float[Array, "3"]:
+    """Mean of the valid points (the origin when none is valid)."""
+    count = jnp.maximum(jnp.sum(valid), 1)
+    return jnp.sum(jnp.where(valid[:, None], points, 0.0), axis=0) / count
+
+
 def transform_points(T: jaxlie.SE3, points: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """``T @ points`` for one transform and many points (see :func:`matvec`)."""
     return matvec(T.rotation().as_matrix(), points) + T.translation()

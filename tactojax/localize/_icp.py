@@ -18,7 +18,7 @@ import jaxlie
 from jaxtyping import Array, Bool, Float, Int
 
 from tactojax.localize._correspondences import (candidate_poses, candidate_surfaces, find_correspondences, matvec,
-                                                 nearest_correspondences, transform_points)
+                                                 nearest_correspondences, transform_points, valid_centroid)
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._pose import PoseEstimate
 from tactojax.localize._solvers import SOLVERS, pose_step
@@ -162,7 +162,7 @@ def icp(
     T_sensor_candidate = candidate_poses(view, candidates)
     surfaces = candidate_surfaces(view, candidates)
     count = jnp.maximum(jnp.sum(points_valid), 1)
-    centroid_sensor = jnp.sum(jnp.where(points_valid[:, None], points, 0.0), axis=0) / count
+    centroid_sensor = valid_centroid(points, points_valid)
     spread = jnp.sqrt(jnp.sum(jnp.where(points_valid, jnp.sum((points - centroid_sensor) ** 2, -1), 0.0)) / count)
     radius = jnp.maximum(spread, 1.0)  # lever arm converting rotation steps into mm
 

@@ -28,6 +28,7 @@ import jaxlie
 from jaxtyping import Array, Bool, Float, Int
 
 from tactojax.localize._consistency import consistency
+from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._icp import IcpSettings, icp
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._pose import PoseEstimate
@@ -114,8 +115,7 @@ def verification_score(
         available: (K,) imprints that may be checked against (the map minus any held-out one).
         settings: search parameters.
     """
-    count = jnp.maximum(jnp.sum(points_valid), 1)
-    centroid = jnp.sum(jnp.where(points_valid[:, None], points, 0.0), axis=0) / count
+    centroid = valid_centroid(points, points_valid)
     around, around_valid = imprints_near(view, T_object_sensor @ centroid, settings.verify_neighbours, available)
     check = consistency(view, around, around_valid, query_heightmap, query_mask, points, points_valid, T_object_sensor)
     return check.agreement - settings.violation_weight * (check.violation + check.reverse_violation)
