@@ -16,14 +16,13 @@ zero. Accuracy: leave-one-out median cloud RMSE (mm) of both pipelines on the sa
     python benchmarks/localization.py --json localization_speed.json
 
 Needs the ``benchmark`` extra (``open3d-cpu``), which imports only with the Debian package
-``libusb-1.0-0`` installed (``apt-get install libusb-1.0-0``).
+``libusb-1.0-0`` installed (``apt-get install libusb-1.0-0``). ``--no-open3d`` leaves the
+reference out (e.g. on a GPU machine without it); the JAX figures are the same.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import time
 from pathlib import Path
 
@@ -43,6 +42,11 @@ from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
 from tactojax.simulate import MappingProtocol
+
+try:  # run as ``python benchmarks/localization.py`` or as a module
+    from benchmarks._common import machine_info, write_json
+except ImportError:
+    from _common import machine_info, write_json
 
 
 def timed(function, calls: int) -> tuple[float, float]:
@@ -100,8 +104,12 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=1000, help="timed localizations (default 1000)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries for accuracy")
     parser.add_argument("--json", metavar="PATH")
+    parser.add_argument("--no-open3d", action="store_true", help="leave out the Open3D reference pipeline")
     args = parser.parse_args()
-    import open3d as o3d  # benchmark-only dependency
+    o3d = None
+    if not args.no_open3d:
+        import open3d as o3d  # benchmark-only dependency
+    print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0].device_kind})")
 
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     if args.map:
@@ -161,6 +169,10 @@ def main() -> None:
         start = time.perf_counter()
         estimate = jax.block_until_ready(localize(key, view, touch, method=method, exclude=int(index)))
         jax_times.append(time.perf_counter() - start)
+        cloud = np.asarray(tactile_map.points[index])[np.asarray(tactile_map.valid[index])]
+        jax_errors.append(cloud_rmse(cloud, T_all[index], np.asarray(estimate.T_object_sensor.as_matrix())))
+        if o3d is None:
+            continue
         # Open3D pipeline: the same retrieval and query points, then Open3D ICP.
         start = time.perf_counter()
         top, _, top_valid = jax.device_get(retrieve(touch, int(index)))
@@ -169,40 +181,39 @@ def main() -> None:
         if len(chosen) == 0:
             o3d_times.append(time.perf_counter() - start)
             o3d_errors.append(np.nan)
-            jax_errors.append(np.nan)
             continue
         mask = point_valid[chosen].reshape(-1)
         T_estimate = open3d_register(o3d, p[pv], points_object[chosen].reshape(-1, 3)[mask],
                                      normals_object[chosen].reshape(-1, 3)[mask], T_all[chosen[0]],
                                      max_distance_mm=settings.max_distance_mm, iterations=settings.iterations)
         o3d_times.append(time.perf_counter() - start)
-        cloud = np.asarray(tactile_map.points[index])[np.asarray(tactile_map.valid[index])]
         o3d_errors.append(cloud_rmse(cloud, T_all[index], T_estimate))
-        jax_errors.append(cloud_rmse(cloud, T_all[index], np.asarray(estimate.T_object_sensor.as_matrix())))
 
     rows = [[stage, f"{1e3 * first:.0f}", f"{1e3 * steady:.2f}"] for stage, (first, steady) in stages.items()]
     print("\nstage timings (ms): first call incl. compile, steady-state median")
     for row in rows:
         print(f"  {row[0]:<14}{row[1]:>10}{row[2]:>10}")
-    jax_median, o3d_median = float(np.nanmedian(jax_errors)), float(np.nanmedian(o3d_errors))
-    o3d_ms = 1e3 * float(np.median(o3d_times))
+    jax_median = float(np.nanmedian(jax_errors))
     print(f"\nCTI-ICP-{args.n}, retrieval + registration per touch, {args.calls} calls:")
     print(f"  tactojax (JAX)   {jax_ms:7.2f} ms   median RMSE {jax_median:6.2f} mm   recompilations {counter.count}")
-    print(f"  Open3D ICP       {o3d_ms:7.2f} ms   median RMSE {o3d_median:6.2f} mm")
-    print(f"  speed-up         {o3d_ms / jax_ms:7.1f}x")
+    o3d_ms = o3d_median = None
+    if o3d is not None:
+        o3d_median, o3d_ms = float(np.nanmedian(o3d_errors)), 1e3 * float(np.median(o3d_times))
+        print(f"  Open3D ICP       {o3d_ms:7.2f} ms   median RMSE {o3d_median:6.2f} mm")
+        print(f"  speed-up         {o3d_ms / jax_ms:7.1f}x")
     if args.json:
         result = {
             "map": {"object": tactile_map.object_id, "imprints": len(tactile_map), "with_contact": int(len(valid))},
             "method": method.name, "calls": args.calls, "recompilations": counter.count,
             "stages_ms": {s: {"first_incl_compile": 1e3 * f, "steady_median": 1e3 * m} for s, (f, m) in stages.items()},
-            "tactojax_ms_per_touch": jax_ms, "open3d_ms_per_touch": o3d_ms, "speedup": o3d_ms / jax_ms,
+            "tactojax_ms_per_touch": jax_ms, "open3d_ms_per_touch": o3d_ms,
+            "speedup": None if o3d_ms is None else o3d_ms / jax_ms,
             "tactojax_median_rmse_mm": jax_median, "open3d_median_rmse_mm": o3d_median,
             "accuracy_queries": int(len(queries)),
-            "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                        "cpu_count": __import__("os").cpu_count(), "jax": jax.__version__,
-                        "backend": jax.default_backend(), "open3d": o3d.__version__},
+            "machine": {**machine_info(), "device": jax.devices()[0].device_kind,
+                        "open3d": None if o3d is None else o3d.__version__},
         }
-        Path(args.json).write_text(json.dumps(result, indent=2))
+        write_json(args.json, result)
         print(f"wrote {args.json}")
 
 

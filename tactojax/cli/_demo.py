@@ -147,7 +147,7 @@ def _localization(args, maps, out: Path) -> dict:
     """Section VI: leave-one-out localization, Table III and histograms."""
     import numpy as np
 
-    from tactojax.cli._maps import object_symmetries
+    from tactojax.cli._maps import histogram_panel, object_symmetries
     from tactojax.localize import evaluate_localization, parse_method
     from tactojax.viz import localization_histogram_figure, save_png
 
@@ -162,7 +162,8 @@ def _localization(args, maps, out: Path) -> dict:
         results = evaluate_localization(jax.random.key(args.seed), tactile_map, methods, symmetries=symmetries,
                                         queries=valid, progress=True)
         payload[tactile_map.object_id] = {m: r.summary() for m, r in results.items()}
-        histograms[tactile_map.object_id] = {m: r.rmse for m, r in results.items()}
+        title, panel = histogram_panel(tactile_map.object_id, results, symmetries)
+        histograms[title] = panel
         rows.append([tactile_map.object_id, *(f"{np.median(r.rmse):.1f} ({np.median(r.symmetric_rmse):.1f})"
                                               for r in results.values())])
     print("median RMSE, mm (symmetry-aware in brackets); the paper: CTI 10-20, CTI-ICP-5 6.1-22.6")

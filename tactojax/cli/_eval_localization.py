@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tactojax.cli._maps import add_encoder_argument, load_maps_with_features, object_symmetries
+from tactojax.cli._maps import add_encoder_argument, histogram_panel, load_maps_with_features, object_symmetries
 from tactojax.cli._table import format_table, write_json
 
 DEFAULT_METHODS = "random,cti,cti-icp-1,cti-icp-5"
@@ -53,7 +53,8 @@ def run(args) -> int:
                          s["symmetric_rmse_mm"]["median"] if symmetric else "-",
                          s["translation_mm"]["median"], s["rotation_deg"]["median"],
                          f"{100 * s['within_mm']['2']:.0f} %"])
-        histograms[tactile_map.object_id] = {name: r.rmse for name, r in results.items()}
+        title, panel = histogram_panel(tactile_map.object_id, results, symmetries)
+        histograms[title] = panel
         payload["objects"][tactile_map.object_id] = {"imprints": len(tactile_map), "queries": int(len(valid)),
                                                      "symmetric": symmetric, "methods": summaries}
         if args.map_sizes:

@@ -17,9 +17,11 @@ from tactojax.localize._correspondences import surface_lookup as surface_lookup
 from tactojax.localize._evaluate import HISTOGRAM_EDGES_MM as HISTOGRAM_EDGES_MM
 from tactojax.localize._evaluate import MAP_FRACTIONS as MAP_FRACTIONS
 from tactojax.localize._evaluate import LocalizationErrors as LocalizationErrors
+from tactojax.localize._evaluate import cloud_moments as cloud_moments
 from tactojax.localize._evaluate import cloud_rmse as cloud_rmse
 from tactojax.localize._evaluate import evaluate_localization as evaluate_localization
 from tactojax.localize._evaluate import map_size_study as map_size_study
+from tactojax.localize._evaluate import moment_rmse as moment_rmse
 from tactojax.localize._evaluate import oracle_imprints as oracle_imprints
 from tactojax.localize._evaluate import pose_errors as pose_errors
 from tactojax.localize._icp import ASSOCIATIONS as ASSOCIATIONS
@@ -81,6 +83,7 @@ __all__ = [
     "Query",
     "SearchSettings",
     "closest_imprints",
+    "cloud_moments",
     "cloud_rmse",
     "consistency",
     "cosine_similarities",
@@ -96,6 +99,7 @@ __all__ = [
     "map_query",
     "nearest_correspondences",
     "map_size_study",
+    "moment_rmse",
     "oracle_imprints",
     "parse_method",
     "pose_errors",

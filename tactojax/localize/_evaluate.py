@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from tqdm.auto import tqdm
 
+from tactojax.localize._correspondences import matvec, valid_centroid
 from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import LocalizationMap, map_query
 from tactojax.localize._methods import (PAPER_METHODS, POINTS_PER_QUERY, estimate_pose, localize_query, parse_method,
@@ -40,6 +41,30 @@ def cloud_rmse(
     """RMSE (mm) between a cloud placed by ``T_a`` and by ``T_b`` (the paper's metric)."""
     squared = jnp.sum((T_a @ points - T_b @ points) ** 2, axis=-1)
     return jnp.sqrt(jnp.sum(jnp.where(valid, squared, 0.0)) / jnp.maximum(jnp.sum(valid), 1))
+
+
+def cloud_moments(points: Float[Array, "P 3"], valid: Bool[Array, "P"]) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """Mean (mm) and covariance (mm^2) of the valid points: all :func:`moment_rmse` needs."""
+    mean = valid_centroid(points, valid)
+    centred = jnp.where(valid[:, None], points - mean, 0.0)
+    return mean, centred.T @ centred / jnp.maximum(jnp.sum(valid), 1)
+
+
+def moment_rmse(
+    mean: Float[Array, "3"], covariance: Float[Array, "3 3"], T_a: jaxlie.SE3, T_b: jaxlie.SE3
+) -> Float[Array, "..."]:
+    """:func:`cloud_rmse` from the cloud's moments, exactly, for many poses at once.
+
+    With ``A = R_a - R_b``, the mean of ``|T_a p - T_b p|^2`` over the cloud is
+    ``tr(A C A^T) + |T_a mu - T_b mu|^2`` (mean ``mu``, covariance ``C``): a sum of two
+    non-negative terms (no cancellation), and O(1) per pose pair instead of O(P). ``T_a`` and
+    ``T_b`` broadcast (e.g. one true pose against every symmetric copy of an estimate).
+    """
+    R_a, R_b = T_a.rotation().as_matrix(), T_b.rotation().as_matrix()
+    A = R_a - R_b
+    offset = matvec(A, mean) + T_a.translation() - T_b.translation()
+    spread = jnp.einsum("...ij,jk,...ik->...", A, covariance, A)
+    return jnp.sqrt(jnp.maximum(spread, 0.0) + jnp.sum(offset**2, axis=-1))
 
 
 def pose_errors(
@@ -67,7 +92,7 @@ def pose_errors(
     translation = jnp.linalg.norm(T_true.translation() - T_estimate.translation())
     symmetric = rmse
     if symmetries is not None:
-        per_symmetry = jax.vmap(lambda S: cloud_rmse(points, valid, T_true, S @ T_estimate))(symmetries)
+        per_symmetry = moment_rmse(*cloud_moments(points, valid), T_true, symmetries @ T_estimate)
         symmetric = jnp.minimum(rmse, jnp.min(per_symmetry))
     return {"rmse": rmse, "translation": translation, "rotation": rotation, "symmetric_rmse": symmetric}
 
@@ -88,16 +113,7 @@ def oracle_imprints(
     A diagnostic ("oracle retrieval"): registration started from these separates the errors of
     retrieval from those of registration. The same opening filter as CTI applies.
     """
-    # RMSE of the cloud under every stored pose from its first two moments (exact, O(K)):
-    # mean |A p + b|^2 = tr(A M A^T) + 2 b^T A mu + |b|^2, A = R_true - R_k, b = t_true - t_k.
-    count = jnp.maximum(jnp.sum(valid), 1)
-    mean = jnp.sum(jnp.where(valid[:, None], points, 0.0), axis=0) / count
-    second = jnp.einsum("pi,pj->ij", jnp.where(valid[:, None], points, 0.0), points) / count
-    A = T_true.rotation().as_matrix()[None] - view.T_object_sensor.rotation().as_matrix()
-    b = T_true.translation()[None] - view.T_object_sensor.translation()
-    squared = (jnp.einsum("kij,jl,kil->k", A, second, A) + 2.0 * jnp.einsum("ki,kij,j->k", b, A, mean)
-               + jnp.sum(b**2, axis=-1))
-    errors = jnp.sqrt(jnp.maximum(squared, 0.0))
+    errors = moment_rmse(*cloud_moments(points, valid), T_true, view.T_object_sensor)  # (K,), O(K)
     index = jnp.arange(len(view))
     eligible = (view.imprint_valid & (jnp.abs(view.openings - opening) < max_opening_difference_mm)
                 & (index != exclude))

@@ -10,7 +10,7 @@ def localization_histogram_figure(results: dict[str, dict], *, max_mm: float = 8
     """Histograms of the leave-one-out RMSE per object (one panel each), one colour per method.
 
     Args:
-        results: ``{object: {method: per-query RMSE array (mm)}}``.
+        results: ``{panel title (the object): {method: per-query RMSE array (mm)}}``.
         max_mm: right end of the histogram (the paper's 80 mm); larger errors go in the last bin.
         bin_mm: bin width, mm.
 

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tactojax.localize import closest_imprints
-from tactojax.localize._evaluate import evaluate_localization, map_size_study
+from tactojax.localize._evaluate import cloud_moments, evaluate_localization, map_size_study, moment_rmse
 
 
 def _matrices(T):
@@ -51,6 +51,24 @@ def test_leave_one_out_cti_errors_match_numpy(bumps_map, cti_errors):
         np.testing.assert_allclose(errors.rotation[q], np.rad2deg(angle), atol=0.05)
         symmetric = min(_rmse(points, matrices[k], matrices[j]), _rmse(points, matrices[k], flip @ matrices[j]))
         np.testing.assert_allclose(errors.symmetric_rmse[q], symmetric, rtol=1e-4, atol=1e-4)
+
+
+def test_moment_rmse_matches_the_cloud_for_a_batch_of_poses():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(200, 3)) * [9.0, 6.0, 1.0] + [4.0, -2.0, 30.0]
+    valid = rng.random(200) > 0.25
+    wxyz_xyz = np.concatenate([Rotation.random(7, random_state=4).as_quat()[:, [3, 0, 1, 2]],
+                               rng.normal(size=(7, 3)) * 40.0], axis=1)
+    poses = jaxlie.SE3(np.asarray(wxyz_xyz, np.float32))
+    T_true = jaxlie.SE3(poses.wxyz_xyz[0])
+    near = jaxlie.SE3.exp(np.array([0.01, 0.0, -0.02, 1e-3, 0.0, 2e-3], np.float32)) @ T_true  # tiny error
+    matrices = _matrices(poses)
+    errors = np.asarray(moment_rmse(*cloud_moments(points.astype(np.float32), valid), T_true, poses))
+    expected = [_rmse(points[valid], matrices[0], matrix) for matrix in matrices]
+    np.testing.assert_allclose(errors, expected, rtol=1e-4, atol=1e-3)
+    assert errors[0] < 1e-3  # the same pose
+    small = float(moment_rmse(*cloud_moments(points.astype(np.float32), valid), T_true, near))
+    np.testing.assert_allclose(small, _rmse(points[valid], matrices[0], _matrices(near)[0]), rtol=2e-2)
 
 
 def test_summary_and_histogram(cti_errors):
