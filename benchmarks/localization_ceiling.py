@@ -30,8 +30,8 @@ from tqdm.auto import tqdm
 from tactojax.features import encode_images
 from tactojax.io import load_tactile_map, resolve_encoder
 from tactojax.localize import (
-    MAX_OPENING_DIFFERENCE_MM, LocalizationMap, SearchSettings, closest_imprints, cloud_rmse, evaluate_localization,
-    localize, map_query, query_points, verification_score,
+    MAX_OPENING_DIFFERENCE_MM, LocalizationMap, SearchSettings, closest_imprints, cloud_moments, cloud_rmse,
+    evaluate_localization, localize, map_query, moment_rmse, query_points, verification_score,
 )
 
 try:  # run as ``python benchmarks/localization_ceiling.py`` or as a module
@@ -50,7 +50,7 @@ def pose_rmse_to_every_imprint(tactile_map, view: LocalizationMap, query: int) -
     T_all = view.T_object_sensor
     T_true = jaxlie.SE3(T_all.wxyz_xyz[query])
     points, valid = tactile_map.points[query], tactile_map.valid[query]
-    return np.asarray(jax.vmap(lambda T: cloud_rmse(points, valid, T_true, T))(T_all))
+    return np.asarray(moment_rmse(*cloud_moments(points, valid), T_true, T_all))
 
 
 def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) -> dict:
