@@ -22,7 +22,7 @@ import jax
 
 
 def machine_info() -> dict[str, Any]:
-    """The machine, CPU count, Python/JAX versions and JAX backend, for the JSON record."""
+    """The machine, CPU count, Python/JAX versions, JAX backend and device, for the JSON record."""
     try:
         usable_cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not available on macOS/Windows
@@ -38,6 +38,7 @@ def machine_info() -> dict[str, Any]:
         "jax_version": jax.__version__,
         "jax_backend": jax.default_backend(),
         "jax_devices": [str(device) for device in jax.devices()],
+        "jax_device_kind": jax.devices()[0].device_kind,  # e.g. "cpu", "NVIDIA H100 80GB HBM3"
     }
 
 

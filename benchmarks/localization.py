@@ -210,8 +210,7 @@ def main() -> None:
             "speedup": None if o3d_ms is None else o3d_ms / jax_ms,
             "tactojax_median_rmse_mm": jax_median, "open3d_median_rmse_mm": o3d_median,
             "accuracy_queries": int(len(queries)),
-            "machine": {**machine_info(), "device": jax.devices()[0].device_kind,
-                        "open3d": None if o3d is None else o3d.__version__},
+            "machine": {**machine_info(), "open3d": None if o3d is None else o3d.__version__},
         }
         write_json(args.json, result)
         print(f"wrote {args.json}")
