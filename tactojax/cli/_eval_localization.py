@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from tactojax.cli._maps import add_encoder_argument, histogram_panel, load_maps_with_features, object_symmetries
+from tactojax.cli._maps import (add_encoder_argument, histogram_panel, is_symmetric, load_maps_with_features,
+                               object_symmetries)
 from tactojax.cli._table import format_table, write_json
 
 DEFAULT_METHODS = "random,cti,cti-icp-1,cti-icp-5"
@@ -47,7 +48,7 @@ def run(args) -> int:
         results = evaluate_localization(key, tactile_map, methods, symmetries=symmetries, queries=valid,
                                         progress=True)
         summaries = {name: r.summary() for name, r in results.items()}
-        symmetric = symmetries is not None and len(symmetries.wxyz_xyz) > 1
+        symmetric = is_symmetric(symmetries)
         for name, s in summaries.items():
             rows.append([tactile_map.object_id, name, s["rmse_mm"]["median"],
                          s["symmetric_rmse_mm"]["median"] if symmetric else "-",

@@ -65,12 +65,17 @@ def object_symmetries(object_id: str):
     return get_object(object_id).symmetry.transforms()
 
 
+def is_symmetric(symmetries) -> bool:
+    """Whether :func:`object_symmetries` gave more than the identity."""
+    return symmetries is not None and len(symmetries.wxyz_xyz) > 1
+
+
 def histogram_panel(object_id: str, results: dict, symmetries) -> tuple[str, dict]:
     """One panel of the localization histogram: ``(title, {method: per-query RMSE, mm})``.
 
     A symmetric object's plain RMSE mostly measures which symmetric copy was picked, so its
     panel shows the symmetry-aware RMSE, and says so.
     """
-    if symmetries is not None and len(symmetries.wxyz_xyz) > 1:
+    if is_symmetric(symmetries):
         return f"{object_id} (symmetry-aware)", {name: r.symmetric_rmse for name, r in results.items()}
     return object_id, {name: r.rmse for name, r in results.items()}
