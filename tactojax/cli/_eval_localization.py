@@ -7,6 +7,8 @@ from tactojax.cli._maps import (add_encoder_argument, histogram_panel, is_symmet
 from tactojax.cli._table import format_table, write_json
 
 DEFAULT_METHODS = "random,cti,cti-icp-1,cti-icp-5"
+DEFAULT_TEST_METHODS = "cti-icp-5,belief"
+DEFAULT_MODEL = "bundled:fast-gelslim-0.5"
 
 
 def add_parser(commands) -> None:
@@ -17,8 +19,9 @@ def add_parser(commands) -> None:
                     "estimated pose (paper section VI), a symmetry-aware RMSE for symmetric catalog "
                     "objects, and saves the error histograms.")
     parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map`")
-    parser.add_argument("--methods", default=DEFAULT_METHODS,
-                        help=f"comma-separated: random, cti, cti-icp-N, cti-icp-multistart-N (default {DEFAULT_METHODS})")
+    parser.add_argument("--methods", default=None,
+                        help="comma-separated: belief, random, cti, cti-icp-N, cti-icp-multistart-N, cti-search-N "
+                             f"(default {DEFAULT_METHODS}; with --test {DEFAULT_TEST_METHODS})")
     add_encoder_argument(parser)
     parser.add_argument("--queries", type=int, default=None, help="at most this many held-out touches per map")
     parser.add_argument("--map-sizes", action="store_true",
@@ -26,17 +29,32 @@ def add_parser(commands) -> None:
     parser.add_argument("--figure", metavar="PNG", default="localization.png", help="histogram figure")
     parser.add_argument("--json", metavar="PATH", help="write the metrics as JSON")
     parser.add_argument("--seed", type=int, default=0)
+    new = parser.add_argument_group("new grasps (instead of leave-one-out)")
+    new.add_argument("--test", metavar="DIR",
+                     help="a new-grasps test set (`tactojax simulate OBJECT --protocol grasps`): every grasp "
+                          "localized alone with each method, and the belief fused over the grasps of each episode")
+    new.add_argument("--touches", type=int, default=None,
+                     help="fuse the first k = 1..K grasps of each episode (default: all of them)")
+    new.add_argument("--fingers", type=int, choices=[1, 2], default=1,
+                     help="fingers fused per grasp (2 needs a test set simulated with --fingers 2)")
+    new.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model for the test images (default {DEFAULT_MODEL})")
     parser.set_defaults(run=run)
 
 
 def run(args) -> int:
+    if args.test:
+        from tactojax.cli._eval_new_grasps import run_new_grasps
+
+        return run_new_grasps(args)
     import jax
     import numpy as np
 
     from tactojax.localize import evaluate_localization, map_size_study, parse_method
     from tactojax.viz import localization_histogram_figure, map_size_figure, save_png
 
-    methods = [parse_method(m).name for m in args.methods.split(",") if m.strip()]
+    methods = [parse_method(m).name for m in (args.methods or DEFAULT_METHODS).split(",") if m.strip()]
+    if "belief" in methods:
+        raise ValueError("leave-one-out with the belief is not supported yet: use --test DIR (new grasps)")
     maps, _ = load_maps_with_features(args.maps, args.encoder)
     key = jax.random.key(args.seed)
     rows, payload, histograms, sizes = [], {"methods": methods, "objects": {}}, {}, {}

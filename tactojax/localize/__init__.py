@@ -4,10 +4,17 @@ A query imprint (predicted heightmap, mask, features, opening) is matched to an 
 tactile map: retrieval of the most similar stored imprints (CTI), then point-to-plane ICP
 against them, with correspondences found by projecting into the stored heightmaps. Methods:
 ``random``, ``cti``, ``cti-icp-N`` (the paper's), ``cti-icp-multistart-N`` and
-``cti-search-N`` (ours: hypotheses around the retrieved imprints, checked for consistency with
-what the sensors felt, refined by ICP).
+``cti-search-N`` (hypotheses around the retrieved imprints, checked for consistency with what
+the sensors felt, refined by ICP), and ``belief`` (ours: a pose belief over dense candidates,
+weighed by a contact and no-contact likelihood, fused over touches and fingers).
 """
 
+from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
+from tactojax.localize._belief import BeliefSettings as BeliefSettings
+from tactojax.localize._belief import PoseBelief as PoseBelief
+from tactojax.localize._belief import empty_belief as empty_belief
+from tactojax.localize._belief import update_belief as update_belief
+from tactojax.localize._candidates import CandidateGrid as CandidateGrid
 from tactojax.localize._consistency import Consistency as Consistency
 from tactojax.localize._consistency import consistency as consistency
 from tactojax.localize._correspondences import Correspondences as Correspondences
@@ -36,6 +43,11 @@ from tactojax.localize._identify import evaluate_identification as evaluate_iden
 from tactojax.localize._identify import identify as identify
 from tactojax.localize._localizer import LiveEstimate as LiveEstimate
 from tactojax.localize._localizer import Localizer as Localizer
+from tactojax.localize._likelihood import LikelihoodSettings as LikelihoodSettings
+from tactojax.localize._likelihood import TouchEvidence as TouchEvidence
+from tactojax.localize._likelihood import log_likelihood as log_likelihood
+from tactojax.localize._likelihood import point_log_likelihoods as point_log_likelihoods
+from tactojax.localize._likelihood import touch_evidence as touch_evidence
 from tactojax.localize._map import LocalizationMap as LocalizationMap
 from tactojax.localize._map import Query as Query
 from tactojax.localize._map import map_query as map_query
@@ -47,6 +59,10 @@ from tactojax.localize._methods import localize as localize
 from tactojax.localize._methods import localize_query as localize_query
 from tactojax.localize._methods import parse_method as parse_method
 from tactojax.localize._methods import query_points as query_points
+from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
+from tactojax.localize._new_grasps import TestEpisodes as TestEpisodes
+from tactojax.localize._new_grasps import calibration as calibration
+from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._pose import PoseEstimate as PoseEstimate
 from tactojax.localize._register import register_multistart as register_multistart
 from tactojax.localize._register import selection_cost as selection_cost
@@ -59,8 +75,29 @@ from tactojax.localize._search import search_and_register as search_and_register
 from tactojax.localize._search import verification_score as verification_score
 from tactojax.localize._solvers import SOLVERS as SOLVERS
 from tactojax.localize._solvers import pose_step as pose_step
+from tactojax.localize._views import SurfaceViews as SurfaceViews
+from tactojax.localize._views import ViewSettings as ViewSettings
+from tactojax.localize._views import build_surface_views as build_surface_views
 
 __all__ = [
+    "WITHIN_MM",
+    "BeliefSettings",
+    "CandidateGrid",
+    "EpisodeErrors",
+    "LikelihoodSettings",
+    "PoseBelief",
+    "SurfaceViews",
+    "TestEpisodes",
+    "TouchEvidence",
+    "ViewSettings",
+    "build_surface_views",
+    "calibration",
+    "empty_belief",
+    "evaluate_new_grasps",
+    "log_likelihood",
+    "point_log_likelihoods",
+    "touch_evidence",
+    "update_belief",
     "ASSOCIATIONS",
     "HISTOGRAM_EDGES_MM",
     "MAP_FRACTIONS",

@@ -167,6 +167,7 @@ def find_correspondences(
     *,
     T_sensor_candidate: jaxlie.SE3 | None = None,
     surfaces: Float[Array, "N H W"] | None = None,
+    pair_valid: Bool[Array, "P N"] | None = None,
 ) -> Correspondences:
     """Match every point to the candidate imprint whose surface is nearest (point-to-plane).
 
@@ -184,6 +185,8 @@ def find_correspondences(
         T_sensor_candidate: (N,) inverted candidate poses, if already computed.
         surfaces: :func:`candidate_surfaces`, if already computed (cheaper lookups; without
             them the points are looked up in the map's own heightmaps and masks).
+        pair_valid: (P, N) which candidates each point may match (e.g. only those facing the
+            same way as the touch it came from); default: all.
 
     Returns:
         :class:`Correspondences` of the P points.
@@ -202,6 +205,8 @@ def find_correspondences(
     residual = (p_sensor[..., 2] + height) * -jax.lax.rsqrt(1.0 + jnp.sum(slope**2, axis=-1))
     ok = (in_contact & candidate_valid[None, :] & points_valid[:, None]
           & (jnp.abs(residual) <= max_distance_mm))
+    if pair_valid is not None:
+        ok = ok & pair_valid
     best = jnp.argmin(jnp.where(ok, jnp.abs(residual), jnp.inf), axis=1)
     take = lambda x: jnp.take_along_axis(x, best[:, None, None], axis=1)[:, 0]  # noqa: E731
     p_best, slope_best = take(p_sensor), take(slope)

@@ -144,6 +144,8 @@ def icp(
     points_valid: Bool[Array, "P"],
     T_start: jaxlie.SE3,
     settings: IcpSettings = IcpSettings(),
+    *,
+    pair_valid: Bool[Array, "P N"] | None = None,
 ) -> PoseEstimate:
     """Register query points to the union of N stored imprints, from a start pose.
 
@@ -155,6 +157,8 @@ def icp(
         points_valid: (P,) which points are real.
         T_start: initial sensor pose in the object frame.
         settings: ICP parameters (static).
+        pair_valid: (P, N) which candidates each point may match (projective association;
+            e.g. the points of several touches, each against the imprints facing its way).
 
     Returns:
         :class:`PoseEstimate` (``imprint_index`` -1: the caller knows where it started).
@@ -181,7 +185,7 @@ def icp(
         else:
             matches = find_correspondences(view, candidates, candidate_valid, moved, points_valid,
                                            settings.max_distance_mm, T_sensor_candidate=T_sensor_candidate,
-                                           surfaces=surfaces)
+                                           surfaces=surfaces, pair_valid=pair_valid)
         weight = robust_weights(matches.residual, matches.valid, settings)
         enough = jnp.sum(weight > 0) >= settings.min_correspondences
         center = matvec(rotation, centroid_sensor) + translation

@@ -41,7 +41,7 @@ POINTS_PER_QUERY = 128
 PAPER_METHODS = ("random", "cti", "cti-icp-1", "cti-icp-5")
 """The methods of the paper's Table III."""
 
-_PATTERN = re.compile(r"^(random|cti|cti-(icp|icp-multistart|search)-(\d+))$")
+_PATTERN = re.compile(r"^(random|cti|belief|cti-(icp|icp-multistart|search)-(\d+))$")
 
 
 @dataclass(frozen=True)
@@ -49,13 +49,14 @@ class Method:
     """A parsed method name (static)."""
 
     kind: str
-    """``"random"``, ``"cti"``, ``"cti-icp"``, ``"cti-icp-multistart"`` or ``"cti-search"``."""
+    """``"random"``, ``"cti"``, ``"cti-icp"``, ``"cti-icp-multistart"``, ``"cti-search"`` or
+    ``"belief"`` (:mod:`tactojax.localize._belief`)."""
     n: int
     """Imprints retrieved (N); 1 for CTI, 0 for RANDOM."""
 
     @property
     def name(self) -> str:
-        return self.kind if self.kind in ("random", "cti") else f"{self.kind}-{self.n}"
+        return self.kind if self.kind in ("random", "cti", "belief") else f"{self.kind}-{self.n}"
 
 
 def parse_method(method: str | Method) -> Method:
@@ -65,10 +66,10 @@ def parse_method(method: str | Method) -> Method:
         return method
     match = _PATTERN.match(method.strip().lower())
     if match is None or int(match.group(3) or 1) < 1:
-        raise ValueError(f"unknown localization method {method!r}: use random, cti, cti-icp-N, "
+        raise ValueError(f"unknown localization method {method!r}: use belief, random, cti, cti-icp-N, "
                          "cti-icp-multistart-N or cti-search-N with N >= 1")
-    if match.group(1) in ("random", "cti"):
-        return Method(match.group(1), 0 if match.group(1) == "random" else 1)
+    if match.group(1) in ("random", "cti", "belief"):
+        return Method(match.group(1), 1 if match.group(1) == "cti" else 0)
     return Method(f"cti-{match.group(2)}", int(match.group(3)))
 
 

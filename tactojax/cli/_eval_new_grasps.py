@@ -1,0 +1,73 @@
+"""``tactojax eval-localization MAP... --test DIR``: localization of new grasps, single and fused."""
+
+from __future__ import annotations
+
+from tactojax.cli._maps import is_symmetric, maps_and_query_encoder, object_symmetries
+from tactojax.cli._table import format_table, write_json
+
+
+def run_new_grasps(args) -> int:
+    import numpy as np
+
+    from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
+    from tactojax.cli._test_set import load_test_episodes
+    from tactojax.io import resolve_shape_model
+    from tactojax.localize import (BeliefSettings, LocalizationMap, build_surface_views, calibration,
+                                   evaluate_new_grasps, parse_method)
+    from tactojax.viz import new_grasps_figure, save_png
+
+    methods = [parse_method(m).name for m in (args.methods or DEFAULT_TEST_METHODS).split(",") if m.strip()]
+    maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
+    model = resolve_shape_model(args.model)
+    rows, payload, curves, calibrations = [], {"methods": methods, "test": args.test, "objects": {}}, {}, {}
+    for tactile_map in maps:
+        episodes, recorded_fingers = load_test_episodes(args.test, tactile_map.object_id, model, encoder)
+        if args.fingers > recorded_fingers:
+            raise ValueError(f"--fingers {args.fingers}: the test set records {recorded_fingers} finger per grasp "
+                             "(simulate it with --fingers 2)")
+        if args.touches is not None:
+            if not 1 <= args.touches <= episodes.openings.shape[1]:
+                raise ValueError(f"--touches must be in 1..{episodes.openings.shape[1]} (grasps per episode)")
+            import jax
+
+            episodes = jax.tree.map(lambda x: x[:, :args.touches], episodes)
+        symmetries = object_symmetries(tactile_map.object_id)
+        symmetric = is_symmetric(symmetries)
+        view = LocalizationMap.from_tactile_map(tactile_map)
+        views = build_surface_views(view) if "belief" in methods else None
+        results = evaluate_new_grasps(view, views, episodes, methods, fingers=args.fingers, symmetries=symmetries,
+                                      settings=BeliefSettings(), progress=True)
+        summaries = [r.summary(symmetric=symmetric) for r in results]
+        for r, s in zip(results, summaries):
+            gap = s.get("calibration", {}).get("max_gap")
+            rows.append([tactile_map.object_id, r.method, r.fingers, r.grasps if r.fused else "1 (each)", s["count"], s["median_rmse_mm"],
+                         s["median_symmetric_rmse_mm"] if symmetric else "-",
+                         *(f"{100 * s['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
+                         s["median_translation_mm"], s["median_rotation_deg"], "-" if gap is None else gap])
+        fused = [(r, s) for r, s in zip(results, summaries) if r.fused]
+        key = "median_symmetric_rmse_mm" if symmetric else "median_rmse_mm"
+        curves[f"{tactile_map.object_id}, {args.fingers} finger{'s' * (args.fingers > 1)}"] = {
+            "grasps": [r.grasps for r, _ in fused], "median_mm": [s[key] for _, s in fused],
+            "single": {r.method: s[key] for r, s in zip(results, summaries) if not r.fused}}
+        beliefs = [r for r in results if r.method == "belief"]
+        if beliefs:
+            error = np.concatenate([r.symmetric_rmse if symmetric else r.rmse for r in beliefs])
+            calibrations[tactile_map.object_id] = calibration(np.concatenate([r.probability for r in beliefs]),
+                                                              error <= 2.0)
+        payload["objects"][tactile_map.object_id] = {
+            "imprints": len(tactile_map), "episodes": int(episodes.openings.shape[0]), "symmetric": symmetric,
+            "results": summaries, "calibration": calibrations.get(tactile_map.object_id)}
+    print(format_table(["object", "method", "fingers", "grasps", "count", "median RMSE (mm)", "symmetric (mm)",
+                        "<= 1 mm", "<= 2 mm", "<= 5 mm", "translation (mm)", "rotation (deg)",
+                        "calibration gap"], rows))
+    if calibrations:
+        print("\nbelief calibration: predicted P(error <= 2 mm) against the observed share, per bin")
+        cal_rows = [[name, f"{b['bin'][0]:.1f}-{b['bin'][1]:.1f}", b["count"],
+                     "-" if b["predicted"] is None else b["predicted"], "-" if b["observed"] is None else b["observed"]]
+                    for name, table in calibrations.items() for b in table["bins"]]
+        print(format_table(["object", "bin", "count", "predicted", "observed"], cal_rows))
+    save_png(new_grasps_figure(curves, calibrations), args.figure)
+    print(f"figure: {args.figure}")
+    if args.json:
+        write_json(args.json, payload)
+    return 0

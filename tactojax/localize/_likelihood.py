@@ -1,0 +1,187 @@
+"""How likely a touch is at a pose: its contact and its no-contact against the map's surface.
+
+A touch is summarised by fixed-size evidence (:class:`TouchEvidence`): points where the gel
+felt the object (x, y, -h) and points of the gel plane where it felt nothing (x, y, 0), both
+in its sensor frame. At a pose hypothesis, both are placed in a local view of the map
+(:class:`~tactojax.localize._views.SurfaceViews`) and scored point by point:
+
+- a contact point over known surface: a robust Gaussian on its distance to the surface along
+  the view's normal, ``log((1 - outlier) N(r; 0, sigma) + outlier / range)``;
+- a contact point over unknown surface: ``log(1 / range)`` (the map says nothing there), or a
+  violation when it lies in space that the map saw free;
+- a no-contact point where the map's surface would have pressed the gel deeper than
+  ``margin_mm``: a violation, ``log(violation)``. This is the paper's "negative information"
+  (its section VIII): it is what tells a patch from the same patch slid along an edge.
+
+The sum over points is tempered by ``temperature`` (neighbouring pixels' errors are not
+independent, so the raw sum is far too confident; see :class:`LikelihoodSettings`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+from jaxtyping import Array, Bool, Float, Int
+
+from tactojax.localize._correspondences import matvec
+from tactojax.localize._views import FREE_HEIGHT_MM, SurfaceViews
+
+
+@dataclass(frozen=True)
+class LikelihoodSettings:
+    """Noise model of a touch against the map (static)."""
+
+    sigma_mm: float = 0.25
+    """Standard deviation of a contact point's distance to the mapped surface, mm."""
+    outlier: float = 0.1
+    """Share of contact points that fit nowhere (mis-predicted heights, unmapped detail)."""
+    range_mm: float = 10.0
+    """Depth range of an outlier or of a point over unknown surface (uniform density), mm."""
+    margin_mm: float = 0.3
+    """A surface must press a gel deeper than this to count against a no-contact pixel, mm."""
+    violation: float = 0.05
+    """Probability of a no-contact pixel where the map's surface presses the gel (or of
+    contact in space the map saw free)."""
+    temperature: float = 0.1
+    """The log-likelihood is scaled by this (an effective share of independent points)."""
+
+
+@struct.dataclass
+class TouchEvidence:
+    """What one touch says, as fixed-size point sets in its sensor frame (mm)."""
+
+    contact: Float[Array, "P 3"]
+    """Points where the gel felt the object: (x, y, -height)."""
+    contact_valid: Bool[Array, "P"]
+    free: Float[Array, "F 3"]
+    """Points of the gel plane where it felt nothing: (x, y, 0)."""
+    free_valid: Bool[Array, "F"]
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_priority(height_px: int, width_px: int, seed: int) -> np.ndarray:
+    order = np.random.default_rng(seed).permutation(height_px * width_px)
+    return (order / (height_px * width_px)).astype(np.float32)
+
+
+def _draw(flat: Bool[Array, "N"], priority: np.ndarray, count: int) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
+    """``count`` pixels drawn uniformly without replacement where ``flat`` holds (fixed order)."""
+    _, index = jax.lax.top_k(jnp.asarray(priority) + flat.astype(jnp.float32), count)
+    return index, flat[index]
+
+
+def touch_evidence(
+    heightmap: Float[Array, "H W"],
+    mask: Bool[Array, "H W"],
+    mm_per_px: float,
+    *,
+    contact_points: int = 64,
+    free_points: int = 64,
+) -> TouchEvidence:
+    """The evidence of one touch: contact points from its mask, no-contact points elsewhere.
+
+    Pixels are drawn by a fixed random order (the same touch always gives the same points).
+    No-contact pixels are those outside the mask and indented less than ``FREE_HEIGHT_MM``.
+    """
+    height_px, width_px = heightmap.shape
+    flat_height = heightmap.reshape(-1)
+    row, col = jnp.divmod(jnp.arange(height_px * width_px), width_px)
+    x = (col - (width_px - 1) / 2.0) * mm_per_px
+    y = (row - (height_px - 1) / 2.0) * mm_per_px
+    contact_index, contact_valid = _draw(mask.reshape(-1), _pixel_priority(height_px, width_px, 1), contact_points)
+    free = ~mask.reshape(-1) & (flat_height < FREE_HEIGHT_MM)
+    free_index, free_valid = _draw(free, _pixel_priority(height_px, width_px, 2), free_points)
+    contact = jnp.stack([x[contact_index], y[contact_index], -flat_height[contact_index]], axis=-1)
+    free_xyz = jnp.stack([x[free_index], y[free_index], jnp.zeros(free_points)], axis=-1)
+    return TouchEvidence(contact=contact, contact_valid=contact_valid & ~jnp.all(~mask),
+                         free=free_xyz, free_valid=free_valid & jnp.any(mask))
+
+
+def point_log_likelihoods(
+    views: SurfaceViews,
+    index: Int[Array, ""],
+    T_view_sensor: jaxlie.SE3,
+    evidence: TouchEvidence,
+    settings: LikelihoodSettings = LikelihoodSettings(),
+) -> tuple[Float[Array, "P"], Float[Array, "F"]]:
+    """Untempered log-likelihood of every contact and no-contact point, in view ``index``.
+
+    Args:
+        views: local views of the map.
+        index: which view.
+        T_view_sensor: the touch's sensor pose in that view's sensor frame.
+        evidence: the touch.
+        settings: noise model.
+
+    Returns:
+        (P,) contact and (F,) no-contact log-likelihoods (0 for invalid points).
+    """
+    rotation, translation = T_view_sensor.rotation().as_matrix(), T_view_sensor.translation()
+    contact = matvec(rotation, evidence.contact) + translation
+    free = matvec(rotation, evidence.free) + translation
+    points = jnp.concatenate([contact, free])
+    surface, known, free_z = views.lookup(jnp.full(points.shape[:1], index), points)
+    count = evidence.contact.shape[0]
+    sigma, uniform = settings.sigma_mm, 1.0 / settings.range_mm
+    residual = contact[:, 2] - surface[:count]
+    gauss = jnp.exp(-0.5 * (residual / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+    fit = jnp.log((1 - settings.outlier) * gauss + settings.outlier * uniform)
+    in_free_space = contact[:, 2] < free_z[:count] - settings.margin_mm
+    log_violation = math.log(settings.violation)
+    unknown = jnp.where(in_free_space, log_violation, math.log(uniform))
+    contact_ll = jnp.where(known[:count], fit, unknown)
+    pressed = known[count:] & (surface[count:] < free[:, 2] - settings.margin_mm)
+    free_ll = jnp.where(pressed, log_violation, math.log1p(-settings.violation))
+    return (jnp.where(evidence.contact_valid, contact_ll, 0.0), jnp.where(evidence.free_valid, free_ll, 0.0))
+
+
+def log_likelihood(
+    views: SurfaceViews,
+    index: Int[Array, ""],
+    T_view_sensor: jaxlie.SE3,
+    evidence: TouchEvidence,
+    settings: LikelihoodSettings = LikelihoodSettings(),
+) -> Float[Array, ""]:
+    """Tempered log-likelihood of a touch at ``T_view_sensor`` in view ``index`` (higher is better)."""
+    contact_ll, free_ll = point_log_likelihoods(views, index, T_view_sensor, evidence, settings)
+    return settings.temperature * (jnp.sum(contact_ll) + jnp.sum(free_ll))
+
+
+def align_depth(
+    views: SurfaceViews,
+    index: Int[Array, ""],
+    T_view_sensor: jaxlie.SE3,
+    evidence: TouchEvidence,
+    *,
+    iterations: int = 2,
+    max_offset_mm: float = 3.0,
+) -> jaxlie.SE3:
+    """The pose moved along the view's normal so that the touch's contact meets the surface.
+
+    A shifted or turned hypothesis is generally too deep or too shallow; the depth offset is
+    the one degree of freedom a contact patch pins down at once. The first iteration moves by
+    the mean distance to the surface of the contact points over known surface within
+    ``max_offset_mm``; each later one by the mean of those within ``max_offset_mm / 3`` of the
+    previous estimate (a trimmed mean: no sort, cheap for thousands of candidates).
+    """
+    def step(carry, width):
+        T, previous = carry
+        rotation, translation = T.rotation().as_matrix(), T.translation()
+        contact = matvec(rotation, evidence.contact) + translation
+        surface, known, _ = views.lookup(jnp.full(contact.shape[:1], index), contact)
+        gap = surface - contact[:, 2]
+        use = evidence.contact_valid & known & (jnp.abs(gap - previous) <= width)
+        offset = jnp.sum(jnp.where(use, gap - previous, 0.0)) / jnp.maximum(jnp.sum(use), 1)
+        T = jaxlie.SE3.from_translation(jnp.array([0.0, 0.0, 1.0]) * offset) @ T
+        return (T, jnp.zeros_like(offset)), None
+
+    widths = max_offset_mm / 3.0 ** jnp.arange(iterations, dtype=jnp.float32)
+    (T, _), _ = jax.lax.scan(step, (T_view_sensor, jnp.float32(0.0)), widths)
+    return T

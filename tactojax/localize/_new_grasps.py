@@ -1,0 +1,236 @@
+"""Localization of *new* grasps, off the mapping grid: single touches and fused episodes.
+
+The headline evaluation (DESIGN.md, "Evaluation"): a test set of grasps that are not in the map
+(``tactojax simulate OBJECT --protocol grasps``), in episodes during which the object stays
+put. Every grasp's sensor-finger touch is localized alone with each method; with the belief,
+the first k grasps of each episode (one or both fingers) are also fused, k = 1..K, the touches
+related by their kinematics. The error is the paper's: the RMSE between the touches' true
+contact clouds at their true and at their estimated poses (over all fused touches), with the
+symmetry-aware value for symmetric objects; the belief's predicted P(error <= 2 mm) is
+compared with what happened (calibration).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+from jaxtyping import Array, Bool, Float
+from tqdm.auto import tqdm
+
+from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
+from tactojax.localize._evaluate import moment_rmse
+from tactojax.localize._likelihood import touch_evidence
+from tactojax.localize._map import LocalizationMap, Query
+from tactojax.localize._methods import localize_query, parse_method
+from tactojax.localize._views import SurfaceViews
+
+CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
+"""Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
+
+
+@struct.dataclass
+class TestEpisodes:
+    """E episodes of G grasps with F fingers each, as localization reads them."""
+
+    heightmaps: Float[Array, "E G F H W"]
+    """Predicted heightmaps, mm."""
+    masks: Bool[Array, "E G F H W"]
+    """Predicted (observed) contact masks."""
+    features: Float[Array, "E G F D"]
+    """Retrieval features."""
+    openings: Float[Array, "E G"]
+    """Gripper openings, mm."""
+    T_object_sensor: jaxlie.SE3
+    """(E, G, F) true sensor poses in the object (map) frame: the truth, and the kinematics
+    (only their relative poses within an episode reach the localizer)."""
+    cloud_mean: Float[Array, "E G F 3"]
+    """Mean of every touch's true contact cloud, sensor frame, mm (the error metric)."""
+    cloud_covariance: Float[Array, "E G F 3 3"]
+    """Its covariance, mm^2."""
+
+
+@dataclass
+class EpisodeErrors:
+    """Errors of one method and number of fused grasps, one value per localization."""
+
+    method: str
+    fingers: int
+    grasps: int
+    fused: bool
+    """False: every grasp's sensor-finger touch alone; True: episodes fused over ``grasps`` grasps."""
+    rmse: np.ndarray
+    """(Q,) RMSE over the fused touches' true clouds, mm."""
+    symmetric_rmse: np.ndarray
+    """(Q,) the same, up to the object's symmetries, mm."""
+    translation: np.ndarray
+    """(Q,) translation error of the first touch's sensor pose, mm."""
+    rotation: np.ndarray
+    """(Q,) its rotation error, degrees."""
+    probability: np.ndarray
+    """(Q,) predicted P(rmse <= 2 mm) (the belief; NaN for the other methods)."""
+
+    def summary(self, *, symmetric: bool = False) -> dict:
+        """JSON-ready medians, shares within 1/2/5 mm and calibration (on the symmetry-aware
+        error where ``symmetric``)."""
+        error = self.symmetric_rmse if symmetric else self.rmse
+        out = {"method": self.method, "fingers": self.fingers, "grasps": self.grasps, "fused": self.fused,
+               "count": int(len(error)),
+               "median_rmse_mm": float(np.median(self.rmse)),
+               "median_symmetric_rmse_mm": float(np.median(self.symmetric_rmse)),
+               "within_mm": {str(t): float(np.mean(error <= t)) for t in (1, 2, 5)},
+               "median_translation_mm": float(np.median(self.translation)),
+               "median_rotation_deg": float(np.median(self.rotation))}
+        if np.all(np.isfinite(self.probability)):
+            out["calibration"] = calibration(self.probability, error <= WITHIN_MM)
+        return out
+
+
+def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BINS) -> dict:
+    """Reliability: per bin of predicted probability, its mean and the observed share."""
+    index = np.clip(np.digitize(predicted, bins[1:-1]), 0, len(bins) - 2)
+    rows = []
+    for b in range(len(bins) - 1):
+        inside = index == b
+        rows.append({"bin": [bins[b], bins[b + 1]], "count": int(inside.sum()),
+                     "predicted": float(predicted[inside].mean()) if inside.any() else None,
+                     "observed": float(happened[inside].mean()) if inside.any() else None})
+    gaps = [abs(r["predicted"] - r["observed"]) for r in rows if r["count"]]
+    return {"bins": rows, "max_gap": float(max(gaps)) if gaps else None,
+            "brier": float(np.mean((predicted - happened) ** 2))}
+
+
+def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3):
+    """RMSE over a set of touches (T,) and its symmetry-aware value; the first touch's pose errors."""
+    per_touch = moment_rmse(mean, covariance, T_true, T_estimate)  # (T,)
+    count = jnp.maximum(jnp.sum(valid), 1)
+    rmse = jnp.sqrt(jnp.sum(jnp.where(valid, per_touch**2, 0.0)) / count)
+    per_symmetry = jax.vmap(lambda S: moment_rmse(mean, covariance, T_true, S @ T_estimate))(symmetries)  # (S, T)
+    symmetric = jnp.sqrt(jnp.min(jnp.sum(jnp.where(valid, per_symmetry**2, 0.0), axis=1)) / count)
+    first_true, first_estimate = (jax.tree.map(lambda x: x[0], T) for T in (T_true, T_estimate))
+    rotation = jnp.rad2deg(jnp.linalg.norm((first_true.inverse() @ first_estimate).rotation().log()))
+    translation = jnp.linalg.norm(first_true.translation() - first_estimate.translation())
+    return rmse, jnp.minimum(rmse, symmetric), translation, rotation
+
+
+@functools.partial(jax.jit, static_argnames=("method", "points_per_query", "settings"))
+def _single_touches(view: LocalizationMap, views: SurfaceViews | None, episodes: TestEpisodes, symmetries,
+                    method, points_per_query: int, settings: BeliefSettings):
+    """Every grasp's sensor-finger touch alone: (E * G,) errors."""
+    take = lambda x: x[:, :, 0].reshape(-1, *x.shape[3:])  # noqa: E731
+    heightmaps, masks, features = take(episodes.heightmaps), take(episodes.masks), take(episodes.features)
+    openings = episodes.openings.reshape(-1)
+    T_true = jax.tree.map(take, episodes.T_object_sensor)
+    mean, covariance = take(episodes.cloud_mean), take(episodes.cloud_covariance)
+
+    def one(heightmap, mask, feature, opening, T, m, c):
+        if method.kind == "belief":
+            evidence = touch_evidence(heightmap, mask, view.mm_per_px)
+            belief = update_belief(view, views, empty_belief(settings, *_sizes(evidence)), evidence, feature, opening,
+                                   jaxlie.SE3.identity(), settings)
+            estimate, probability = belief.best, belief.probability_within()
+        else:
+            query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
+            estimate = localize_query(jax.random.key(0), view, query, method,
+                                      points_per_query=points_per_query).T_object_sensor
+            probability = jnp.float32(jnp.nan)
+        one_touch = lambda x: x[None]  # noqa: E731
+        errors = _errors(jax.tree.map(one_touch, T), jax.tree.map(one_touch, estimate), m[None], c[None],
+                         jnp.ones(1, bool), symmetries)
+        return (*errors, probability)
+
+    return jax.lax.map(lambda args: one(*args), (heightmaps, masks, features, openings, T_true, mean, covariance),
+                       batch_size=8)
+
+
+def _sizes(evidence):
+    return evidence.contact.shape[0], evidence.free.shape[0]
+
+
+@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
+def _fused_episode(view: LocalizationMap, views: SurfaceViews, episode: TestEpisodes, symmetries, fingers: int,
+                   settings: BeliefSettings):
+    """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
+    grasps = episode.openings.shape[0]
+    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
+    evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
+                                                                                       episode.masks)
+    belief = empty_belief(settings, *_sizes(jax.tree.map(lambda x: x[0, 0], evidence)))
+
+    def grasp(belief, g):
+        for finger in range(fingers):
+            T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
+            belief = update_belief(view, views, belief, jax.tree.map(lambda x: x[g, finger], evidence),
+                                   episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
+                                   settings)
+        # Error over every touch fused so far (grasps 0..g, the fingers used).
+        T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
+        T_estimate = belief.best @ (T_reference.inverse() @ T_true)
+        valid = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
+        errors = _errors(T_true, T_estimate, episode.cloud_mean[:, :fingers].reshape(-1, 3),
+                         episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, symmetries)
+        return belief, (*errors, belief.probability_within())
+
+    _, out = jax.lax.scan(grasp, belief, jnp.arange(grasps))
+    return out
+
+
+def evaluate_new_grasps(
+    view: LocalizationMap,
+    views: SurfaceViews | None,
+    episodes: TestEpisodes,
+    methods=("cti-icp-5", "belief"),
+    *,
+    fingers: int = 1,
+    symmetries: jaxlie.SE3 | None = None,
+    settings: BeliefSettings = BeliefSettings(),
+    points_per_query: int = 128,
+    progress: bool = False,
+) -> list[EpisodeErrors]:
+    """Single-touch errors of every method, and the belief fused over 1..G grasps.
+
+    Args:
+        view: the object's map.
+        views: its local surface views (needed by the belief).
+        episodes: the test grasps (:class:`TestEpisodes`, F >= ``fingers``).
+        methods: method names (``"belief"`` or any :func:`~tactojax.localize.localize` method).
+        fingers: fingers fused per grasp (1 or 2).
+        symmetries: (S,) the object's symmetry transforms (default: the identity).
+        settings: belief parameters.
+        points_per_query: query points of the ICP methods.
+        progress: show progress bars.
+
+    Returns:
+        one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1),
+        then, for the belief, one per number of fused grasps with ``fingers`` fingers.
+    """
+    if symmetries is None:
+        symmetries = jaxlie.SE3.identity((1,))
+    if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
+        raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
+                         f"{episodes.heightmaps.shape[2]})")
+    results = []
+    for name in tqdm(methods, desc="single touches", disable=not progress):
+        method = parse_method(name)
+        if method.kind == "belief" and views is None:
+            raise ValueError("the belief needs the map's surface views (build_surface_views)")
+        out = jax.device_get(_single_touches(view, views, episodes, symmetries, method, points_per_query, settings))
+        results.append(EpisodeErrors(method.name, 1, 1, False, *(np.asarray(x) for x in out)))
+    if any(parse_method(name).kind == "belief" for name in methods):
+        count, grasps = episodes.openings.shape
+        per_episode = []
+        for e in tqdm(range(count), desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})",
+                      disable=not progress):
+            episode = jax.tree.map(lambda x: x[e], episodes)
+            per_episode.append(jax.device_get(_fused_episode(view, views, episode, symmetries, fingers, settings)))
+        stacked = [np.stack([p[i] for p in per_episode]) for i in range(5)]  # (E, G) each
+        for g in range(grasps):
+            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))
+    return results
+
+
