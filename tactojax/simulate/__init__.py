@@ -3,6 +3,7 @@
 from tactojax.simulate._grasp import GraspConfig as GraspConfig
 from tactojax.simulate._grasp import GraspResult as GraspResult
 from tactojax.simulate._grasp import simulate_grasps as simulate_grasps
+from tactojax.simulate._grasp import simulate_two_sensor_grasps as simulate_two_sensor_grasps
 from tactojax.simulate._protocols import CalibrationProtocol as CalibrationProtocol
 from tactojax.simulate._protocols import GraspPlan as GraspPlan
 from tactojax.simulate._protocols import MappingProtocol as MappingProtocol
@@ -19,5 +20,5 @@ from tactojax.simulate._touch import touch as touch
 __all__ = [
     "CalibrationProtocol", "GraspConfig", "GraspPlan", "GraspResult", "MappingProtocol",
     "TouchPlan", "calibration_plan", "cast_rays", "mapping_plan", "pad_rays", "plan_protocol",
-    "protocol_fields", "simulate_grasps", "simulate_protocol", "touch",
+    "protocol_fields", "simulate_grasps", "simulate_protocol", "simulate_two_sensor_grasps", "touch",
 ]
