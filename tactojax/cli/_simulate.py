@@ -9,19 +9,24 @@ import jax
 
 def add_parser(commands) -> None:
     parser = commands.add_parser(
-        "simulate", help="simulate a mapping or calibration protocol on an object",
+        "simulate", help="simulate a mapping, calibration or new-grasps protocol on an object",
         description="Simulate the paper's mapping (section V) or calibration (section IV) "
-        "protocol on a catalog object or a mesh file, appending imprints to a dataset.")
+        "protocol, or new grasps off the mapping grid (a localization test set), on a catalog "
+        "object or a mesh file, appending imprints to a dataset.")
     parser.add_argument("object", help="catalog name (see `tactojax info --objects`) or mesh path (STL/OBJ/PLY)")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
-    parser.add_argument("--protocol", choices=["mapping", "calibration"], default="mapping")
+    parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps"], default="mapping")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
     parser.add_argument("--scale", type=float, default=1.0, help="sensor resolution factor in (0, 1] (default 1)")
     parser.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
     parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0], help="mapping yaws, degrees")
     parser.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0], help="object turns, degrees")
     parser.add_argument("--touches", type=int, default=600, help="calibration touches per shape (default 600)")
+    parser.add_argument("--episodes", type=int, default=30, help="new grasps: episodes, each one object turn (default 30)")
+    parser.add_argument("--grasps-per-episode", type=int, default=5, help="new grasps per episode (default 5)")
+    parser.add_argument("--fingers", type=int, choices=[1, 2], default=1, help="new grasps: sensors on 1 or both jaws")
+    parser.add_argument("--yaw-range-deg", type=float, default=20.0, help="new grasps: yaw within ±this, degrees")
     parser.add_argument("--depth-mm", type=float, default=1.0, help="mapping penetration depth, mm (default 1)")
     parser.add_argument("--depth-noise-mm", type=float, default=0.0, help="std of the penetration depth, mm")
     parser.add_argument("--seed", type=int, default=0)
@@ -34,12 +39,16 @@ def run(args) -> int:
     from tactojax.io import simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
-    from tactojax.simulate import CalibrationProtocol, GraspConfig, MappingProtocol
+    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol
 
     obj = resolve_object(args.object, units=args.mesh_units)
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))
+    elif args.protocol == "grasps":
+        protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps_per_episode,
+                                  fingers=args.fingers, yaw_range_deg=args.yaw_range_deg,
+                                  turns_deg=tuple(args.turns_deg))
     else:
         protocol = CalibrationProtocol(touches=args.touches)
     config = GraspConfig(depth_mm=args.depth_mm, depth_noise_mm=args.depth_noise_mm)

@@ -38,6 +38,7 @@ from tactojax.io._shape import save_shape_model as save_shape_model
 from tactojax.io._shape import save_train_state as save_train_state
 from tactojax.io._shape import shape_model_metadata as shape_model_metadata
 from tactojax.io._touches import load_touches as load_touches
+from tactojax.io._test_grasps import read_test_grasps as read_test_grasps
 from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
 from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
 from tactojax.io._taxim import TaximCalibration as TaximCalibration
@@ -69,6 +70,7 @@ __all__ = [
     "export_ply",
     "load_tactile_map",
     "read_grasps",
+    "read_test_grasps",
     "save_tactile_map",
     "tactile_map_metadata",
     "InvalidMeshError",

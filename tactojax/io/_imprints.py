@@ -6,6 +6,10 @@ Records follow ``tactojax.simulate.simulate_protocol``: ``image`` (H, W, 3) uint
 ``object_id`` (str) and the protocol's grasp parameters. The dataset metadata names the sensor
 (preset, resolution, mm per pixel), the protocol and its settings, and the grasp settings; a
 dataset holds one sensor and one protocol, and several objects can be appended to it.
+
+New-grasps datasets (``GraspsProtocol``) also hold ``episode``, ``grasp`` and ``finger`` (int64):
+episode ids are unique within a dataset, each run continuing after the largest id already
+there (so an episode is also unique per ``(object_id, episode)``).
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import numpy as np
 from tactojax.io._dataset import DatasetWriter, open_dataset
 from tactojax.objects import TactileObject
 from tactojax.sensor import Imprint, SensorSpec
-from tactojax.simulate import CalibrationProtocol, GraspConfig, MappingProtocol, simulate_protocol
+from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, simulate_protocol
 
 
 def sensor_metadata(spec: SensorSpec) -> dict:
@@ -44,7 +48,7 @@ def simulate_to_dataset(
     key: jax.Array,
     spec: SensorSpec,
     obj: TactileObject,
-    protocol: MappingProtocol | CalibrationProtocol,
+    protocol: MappingProtocol | CalibrationProtocol | GraspsProtocol,
     *,
     config: GraspConfig = GraspConfig(),
     batch_size: int = 16,
@@ -54,6 +58,7 @@ def simulate_to_dataset(
     """Simulate ``protocol`` on ``obj`` and append its imprints to the dataset at ``path``.
 
     Crash-safe: an interrupted run leaves a readable dataset of the chunks already written.
+    New grasps: episodes are numbered on from the largest ``episode`` already in the dataset.
 
     Returns:
         The number of imprints written (grasps that missed are skipped).
@@ -61,12 +66,25 @@ def simulate_to_dataset(
     metadata = dataset_metadata(spec, protocol, config)
     written = 0
     with DatasetWriter(path, metadata=metadata, chunk_size=chunk_size) as writer:
+        first_episode = _next_episode(path) if isinstance(protocol, GraspsProtocol) else 0
         for records in simulate_protocol(key, spec, obj, protocol, config=config,
                                          batch_size=batch_size, progress=progress):
+            if first_episode:
+                records = {**records, "episode": records["episode"] + first_episode}
             for i in range(len(records["image"])):
                 writer.append({name: values[i] for name, values in records.items()})
                 written += 1
     return written
+
+
+def _next_episode(path: str | Path) -> int:
+    """One past the largest episode id of the dataset at ``path`` (0 if none yet)."""
+    if not (Path(path) / "manifest.json").exists():
+        return 0
+    dataset = open_dataset(path)
+    if "episode" not in dataset.fields or len(dataset) == 0:
+        return 0
+    return int(dataset.read(["episode"])["episode"].max()) + 1
 
 
 def load_imprints(path: str | Path, indices=None) -> tuple[Imprint, np.ndarray]:

@@ -3,11 +3,15 @@
 from tactojax.simulate._grasp import GraspConfig as GraspConfig
 from tactojax.simulate._grasp import GraspResult as GraspResult
 from tactojax.simulate._grasp import simulate_grasps as simulate_grasps
+from tactojax.simulate._grasp import simulate_two_sensor_grasps as simulate_two_sensor_grasps
 from tactojax.simulate._protocols import CalibrationProtocol as CalibrationProtocol
+from tactojax.simulate._protocols import GraspCandidates as GraspCandidates
 from tactojax.simulate._protocols import GraspPlan as GraspPlan
+from tactojax.simulate._protocols import GraspsProtocol as GraspsProtocol
 from tactojax.simulate._protocols import MappingProtocol as MappingProtocol
 from tactojax.simulate._protocols import TouchPlan as TouchPlan
 from tactojax.simulate._protocols import calibration_plan as calibration_plan
+from tactojax.simulate._protocols import grasps_plan as grasps_plan
 from tactojax.simulate._protocols import mapping_plan as mapping_plan
 from tactojax.simulate._run import plan_protocol as plan_protocol
 from tactojax.simulate._run import protocol_fields as protocol_fields
@@ -17,7 +21,8 @@ from tactojax.simulate._touch import pad_rays as pad_rays
 from tactojax.simulate._touch import touch as touch
 
 __all__ = [
-    "CalibrationProtocol", "GraspConfig", "GraspPlan", "GraspResult", "MappingProtocol",
-    "TouchPlan", "calibration_plan", "cast_rays", "mapping_plan", "pad_rays", "plan_protocol",
-    "protocol_fields", "simulate_grasps", "simulate_protocol", "touch",
+    "CalibrationProtocol", "GraspCandidates", "GraspConfig", "GraspPlan", "GraspResult", "GraspsProtocol",
+    "MappingProtocol", "TouchPlan", "calibration_plan", "cast_rays", "grasps_plan", "mapping_plan", "pad_rays",
+    "plan_protocol", "protocol_fields", "simulate_grasps", "simulate_protocol", "simulate_two_sensor_grasps",
+    "touch",
 ]

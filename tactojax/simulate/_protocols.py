@@ -8,6 +8,14 @@ vertical plane normal to the closing axis), centred on and covering the object's
 as seen in that plane; along the closing axis each grasp is centred on the box. Grasps that
 miss, or that the open gripper cannot fit around, are skipped when simulated.
 
+New grasps (a localization test set, off the mapping grid). Episodes: each places the object
+as one mapping turn, drawn uniformly from ``turns_deg``, and makes ``grasps_per_episode`` grasps
+from above like the mapping protocol, each with its own gripper yaw (uniform within
+``±yaw_range_deg``) and centre (uniform over the object's bounding box as seen in the plane of
+the gripper at that yaw; centred on the box along the closing axis). Positions and yaws are
+continuous. Candidates are drawn without end for each episode (candidate ``i`` of episode ``e``
+depends only on the key, ``e`` and ``i``); the simulation keeps the first valid ones.
+
 Calibration (section IV). Frontal touches: the sensor faces straight down onto the shape (whose
 top points up, +z), turned by a random angle about its normal, shifted so that the shape's axis
 crosses the gel at a random offset from the image centre (uniform, up to
@@ -26,7 +34,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from flax import struct
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from tactojax.objects import TactileObject
 from tactojax.sensor import SensorSpec
@@ -43,6 +51,21 @@ class MappingProtocol:
     yaws_deg: tuple[float, ...] = (0.0, 20.0, -20.0)
     turns_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
     name: str = "mapping"
+
+
+@dataclass(frozen=True)
+class GraspsProtocol:
+    """New grasps off the mapping grid, in episodes of a fixed object pose (a localization test set)."""
+
+    episodes: int = 30
+    grasps_per_episode: int = 5
+    fingers: int = 1
+    """1: the sensor jaw records (rigid opposite pad, as mapping); 2: both jaws carry a sensor."""
+    yaw_range_deg: float = 20.0
+    """Gripper yaw about world z, uniform within ±this, degrees."""
+    turns_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    """Object turns about world z an episode draws from (uniformly), degrees."""
+    name: str = "grasps"
 
 
 @dataclass(frozen=True)
@@ -70,6 +93,28 @@ class GraspPlan:
     """Grid coordinate along the gripper's x axis (horizontal), mm."""
     grid_v_mm: Float[Array, "G"]
     """Grid coordinate along world z (height), mm."""
+
+    def __len__(self) -> int:
+        return int(self.turn_rad.shape[0])
+
+
+@struct.dataclass
+class GraspCandidates:
+    """N candidate grasps of the new-grasps protocol, in the order they were asked for."""
+
+    T_world_object: jaxlie.SE3
+    """(N,) object poses (the episode's turn about world z)."""
+    T_world_gripper: jaxlie.SE3
+    """(N,) commanded gripper poses, fully open."""
+    turn_rad: Float[Array, "N"]
+    yaw_rad: Float[Array, "N"]
+    u_mm: Float[Array, "N"]
+    """Grasp centre along the gripper's x axis (horizontal), mm."""
+    v_mm: Float[Array, "N"]
+    """Grasp centre height (world z), mm."""
+    episode: Int[Array, "N"]
+    candidate: Int[Array, "N"]
+    """Index of the candidate within its episode's sequence."""
 
     def __len__(self) -> int:
         return int(self.turn_rad.shape[0])
@@ -134,6 +179,86 @@ def mapping_plan(obj: TactileObject, protocol: MappingProtocol = MappingProtocol
     )
 
 
+def grasps_plan(
+    key: PRNGKeyArray, obj: TactileObject, protocol: GraspsProtocol = GraspsProtocol(),
+    *, candidates: int | None = None, start: int = 0,
+) -> GraspCandidates:
+    """Candidates ``start .. start + candidates - 1`` of every episode (see the module docstring).
+
+    Args:
+        key: PRNG key of the protocol (the same key gives the same candidates).
+        obj: the object.
+        protocol: episodes, yaw range and turns.
+        candidates: candidates per episode (default ``grasps_per_episode``).
+        start: index of the first candidate of each episode.
+
+    Returns:
+        Episode-major candidates, (episodes * candidates,).
+    """
+    count = protocol.grasps_per_episode if candidates is None else candidates
+    episode, candidate = np.divmod(np.arange(protocol.episodes * count), count)
+    return grasp_candidates(key, obj, protocol, episode, start + candidate)
+
+
+def grasp_candidates(
+    key: PRNGKeyArray, obj: TactileObject, protocol: GraspsProtocol, episode, candidate,
+) -> GraspCandidates:
+    """Candidate grasps ``candidate[n]`` of episodes ``episode[n]`` (integer arrays (N,))."""
+    check_grasps_protocol(protocol)
+    episode = np.asarray(episode, np.int64).reshape(-1)
+    candidate = np.asarray(candidate, np.int64).reshape(-1)
+    if episode.size and (episode.min() < 0 or episode.max() >= protocol.episodes or candidate.min() < 0):
+        raise ValueError(f"episodes must lie in [0, {protocol.episodes}) and candidates be >= 0")
+    turn_keys, grasp_keys = _episode_keys(key, episode)
+    turn_index = jax.vmap(lambda k: jax.random.randint(k, (), 0, len(protocol.turns_deg)))(turn_keys)
+    draws = np.asarray(jax.vmap(lambda k, i: jax.random.uniform(jax.random.fold_in(k, i), (3,)))(
+        grasp_keys, jnp.asarray(candidate, jnp.uint32)), np.float64).reshape(-1, 3)
+    turn = np.deg2rad(np.asarray(protocol.turns_deg, np.float64))[np.asarray(turn_index)].reshape(-1)
+    yaw = np.deg2rad(protocol.yaw_range_deg) * (2.0 * draws[:, 0] - 1.0)
+    R_world_object = _rot_z_batch(turn)
+    R_world_gripper = _rot_z_batch(yaw) @ _R_WORLD_GRIPPER_0
+    # Box corners in the world, then in the yawed gripper axes: u along x, c along the closing axis.
+    corners = np.einsum("nij,kj->nki", R_world_object, _box_corners(obj.bounds))
+    u = np.einsum("nki,ni->nk", corners, R_world_gripper[:, :, 0])
+    c = np.einsum("nki,ni->nk", corners, R_world_gripper[:, :, 1])
+    z = corners[..., 2]
+    grasp_u = u.min(1) + draws[:, 1] * (u.max(1) - u.min(1))
+    grasp_v = z.min(1) + draws[:, 2] * (z.max(1) - z.min(1))
+    centre_c = 0.5 * (c.min(1) + c.max(1))
+    position = grasp_u[:, None] * R_world_gripper[:, :, 0] + centre_c[:, None] * R_world_gripper[:, :, 1]
+    position[:, 2] = grasp_v
+    return GraspCandidates(
+        T_world_object=jaxlie.SE3.from_rotation(jaxlie.SO3.from_matrix(jnp.asarray(R_world_object, jnp.float32))),
+        T_world_gripper=jaxlie.SE3.from_rotation_and_translation(
+            jaxlie.SO3.from_matrix(jnp.asarray(R_world_gripper, jnp.float32)), jnp.asarray(position, jnp.float32)),
+        turn_rad=jnp.asarray(turn, jnp.float32),
+        yaw_rad=jnp.asarray(yaw, jnp.float32),
+        u_mm=jnp.asarray(grasp_u, jnp.float32),
+        v_mm=jnp.asarray(grasp_v, jnp.float32),
+        episode=jnp.asarray(episode, jnp.int32),
+        candidate=jnp.asarray(candidate, jnp.int32),
+    )
+
+
+def check_grasps_protocol(protocol: GraspsProtocol) -> None:
+    """ValueError naming the first bad setting of a new-grasps protocol."""
+    if protocol.episodes < 1 or protocol.grasps_per_episode < 1:
+        raise ValueError(f"need at least one episode and one grasp per episode, got {protocol.episodes} "
+                         f"episodes of {protocol.grasps_per_episode} grasps")
+    if protocol.fingers not in (1, 2):
+        raise ValueError(f"fingers must be 1 or 2, got {protocol.fingers}")
+    if not 0.0 <= protocol.yaw_range_deg <= 90.0:
+        raise ValueError(f"yaw range must lie in [0, 90] degrees, got {protocol.yaw_range_deg}")
+    if not protocol.turns_deg:
+        raise ValueError("need at least one object turn")
+
+
+def _episode_keys(key: PRNGKeyArray, episode: np.ndarray) -> tuple[PRNGKeyArray, PRNGKeyArray]:
+    """(turn key, grasp key) of each episode: functions of the protocol key and the episode only."""
+    keys = jax.vmap(lambda e: jax.random.split(jax.random.fold_in(key, e)))(jnp.asarray(episode, jnp.uint32))
+    return keys[:, 0], keys[:, 1]
+
+
 def calibration_plan(
     key: PRNGKeyArray, obj: TactileObject, spec: SensorSpec,
     protocol: CalibrationProtocol = CalibrationProtocol(),
@@ -166,3 +291,9 @@ def calibration_plan(
 def _rot_z(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_z_batch(angle: np.ndarray) -> np.ndarray:
+    c, s, zero, one = np.cos(angle), np.sin(angle), np.zeros_like(angle), np.ones_like(angle)
+    return np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1),
+                     np.stack([zero, zero, one], -1)], -2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 
 import jax
@@ -14,22 +15,29 @@ from tqdm.auto import tqdm
 from tactojax.geometry import gripper_pose
 from tactojax.objects import TactileObject
 from tactojax.sensor import SensorSpec
-from tactojax.simulate._grasp import GraspConfig, simulate_grasps
+from tactojax.simulate._grasp import GraspConfig, simulate_grasps, simulate_two_sensor_grasps
 from tactojax.simulate._protocols import (
-    CalibrationProtocol, GraspPlan, MappingProtocol, TouchPlan, calibration_plan, mapping_plan,
+    CalibrationProtocol, GraspCandidates, GraspPlan, GraspsProtocol, MappingProtocol, TouchPlan,
+    calibration_plan, check_grasps_protocol, grasp_candidates, grasps_plan, mapping_plan,
 )
 from tactojax.simulate._touch import touch
 
 Records = dict[str, np.ndarray]
+Protocol = MappingProtocol | CalibrationProtocol | GraspsProtocol
+
+MAX_MISSES_IN_A_ROW = 50
+"""New-grasps protocol: an episode gives up after this many skipped candidates in a row."""
 
 
 def plan_protocol(
-    key: PRNGKeyArray, spec: SensorSpec, obj: TactileObject,
-    protocol: MappingProtocol | CalibrationProtocol,
-) -> GraspPlan | TouchPlan:
-    """The grasps (mapping) or touches (calibration) a protocol makes on ``obj``."""
+    key: PRNGKeyArray, spec: SensorSpec, obj: TactileObject, protocol: Protocol,
+) -> GraspPlan | TouchPlan | GraspCandidates:
+    """The grasps (mapping), touches (calibration) or first candidate grasps (new grasps: as
+    many per episode as it keeps; misses are replaced by later candidates) a protocol makes."""
     if isinstance(protocol, MappingProtocol):
         return mapping_plan(obj, protocol)
+    if isinstance(protocol, GraspsProtocol):
+        return grasps_plan(key, obj, protocol)
     return calibration_plan(key, obj, spec, protocol)
 
 
@@ -37,7 +45,7 @@ def simulate_protocol(
     key: PRNGKeyArray,
     spec: SensorSpec,
     obj: TactileObject,
-    protocol: MappingProtocol | CalibrationProtocol,
+    protocol: Protocol,
     *,
     config: GraspConfig = GraspConfig(),
     batch_size: int = 16,
@@ -50,7 +58,18 @@ def simulate_protocol(
     ``heightmap`` (mm), ``mask``, ``T_world_sensor``/``T_world_gripper``/``T_world_object``
     (wxyz + xyz, mm), ``opening_mm``, ``depth_mm``, ``object_id`` and the protocol's own grasp
     parameters (see :func:`protocol_fields`). Skipped grasps (misses, collisions) are dropped.
+
+    New grasps (:class:`GraspsProtocol`): every episode has exactly ``grasps_per_episode``
+    grasps, the first valid candidates of its sequence (ValueError after
+    ``MAX_MISSES_IN_A_ROW`` skipped candidates in a row); one record per finger imprint,
+    ordered by episode, grasp, finger. ``episode`` counts 0 .. episodes - 1 here (see
+    ``tactojax.io.simulate_to_dataset`` for datasets), ``grasp`` 0 .. grasps_per_episode - 1,
+    ``finger`` 0 (sensor jaw) or 1 (opposite jaw, ``fingers=2``). Results are deterministic
+    for a key and batch size.
     """
+    if isinstance(protocol, GraspsProtocol):
+        yield from _simulate_new_grasps(key, spec, obj, protocol, config, batch_size, progress)
+        return
     plan_key, sim_key = jax.random.split(key)
     plan = plan_protocol(plan_key, spec, obj, protocol)
     total = len(plan)
@@ -70,10 +89,12 @@ def simulate_protocol(
     bar.close()
 
 
-def protocol_fields(protocol: MappingProtocol | CalibrationProtocol) -> tuple[str, ...]:
+def protocol_fields(protocol: Protocol) -> tuple[str, ...]:
     """Names of the per-record grasp parameters a protocol stores."""
     if isinstance(protocol, MappingProtocol):
         return ("turn_rad", "yaw_rad", "grid_u_mm", "grid_v_mm")
+    if isinstance(protocol, GraspsProtocol):
+        return ("episode", "grasp", "finger", "turn_rad", "yaw_rad")
     return ("rotation_rad", "offset_x_mm", "offset_y_mm")
 
 
@@ -118,6 +139,91 @@ def _grasp_records(key, spec, obj, plan: GraspPlan, config: GraspConfig) -> tupl
     inverse = np.argsort(np.concatenate(order))
     merged = {k: np.concatenate([p[k] for p in parts])[inverse] for k in parts[0]}
     return merged, valid
+
+
+def _simulate_new_grasps(key, spec, obj, protocol: GraspsProtocol, config, batch_size, progress
+                         ) -> Iterator[Records]:
+    """New-grasps protocol: blocks of episodes, simulated in full batches of candidates until
+    each episode of the block has its grasps, then yielded in order."""
+    plan_key, sim_key = jax.random.split(key)
+    grasps = protocol.grasps_per_episode
+    plan_candidates = functools.partial(grasp_candidates, plan_key, obj, protocol)
+    check_grasps_protocol(protocol)
+    block = max(1, batch_size // grasps)
+    bar = tqdm(total=protocol.episodes * grasps, desc=f"{obj.name} ({protocol.name})", unit="grasp",
+               disable=not progress)
+    batch_index = 0
+    for first in range(0, protocol.episodes, block):
+        episodes = range(first, min(first + block, protocol.episodes))
+        kept: dict[int, list[Records]] = {e: [] for e in episodes}
+        next_candidate = dict.fromkeys(episodes, 0)
+        misses = dict.fromkeys(episodes, 0)
+        while any(len(kept[e]) < grasps for e in episodes):
+            lacking = {e: grasps - len(kept[e]) for e in episodes if len(kept[e]) < grasps}
+            episode, candidate = _candidate_round(lacking, next_candidate, batch_size)
+            for start in range(0, len(episode), batch_size):
+                batch = plan_candidates(episode[start:start + batch_size], candidate[start:start + batch_size])
+                records, valid = _new_grasp_records(jax.random.fold_in(sim_key, batch_index), spec, obj, batch,
+                                                    config, protocol.fingers)
+                batch_index += 1
+                for n, e in enumerate(np.asarray(batch.episode).tolist()):
+                    if len(kept[e]) == grasps:
+                        continue
+                    if not valid[n]:
+                        misses[e] += 1
+                        if misses[e] >= MAX_MISSES_IN_A_ROW:
+                            bar.close()
+                            raise ValueError(
+                                f"{obj.name}: {misses[e]} grasps in a row missed the object or collided "
+                                f"with it (episode {e}); is it wider than the open gripper "
+                                f"({config.max_opening_mm} mm) or deeper than the gel?")
+                        continue
+                    misses[e] = 0
+                    kept[e].append({name: values[n] for name, values in records.items()})
+                    bar.update(1)
+        for e in episodes:
+            for g, grasp_records in enumerate(kept[e]):
+                fingers = len(grasp_records["image"])
+                grasp_records.update(episode=np.full(fingers, e, np.int64), grasp=np.full(fingers, g, np.int64),
+                                     finger=np.arange(fingers, dtype=np.int64))
+        yield {name: np.concatenate([r[name] for e in episodes for r in kept[e]]) for name in kept[first][0]}
+    bar.close()
+
+
+def _candidate_round(lacking: dict[int, int], next_candidate: dict[int, int], batch_size: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(episode, candidate) indices of one round: each episode's next candidates, as many as it
+    lacks grasps, plus spares (round robin) that fill the last batch. Advances ``next_candidate``."""
+    wanted = dict(lacking)
+    for i in range(-sum(wanted.values()) % batch_size):
+        wanted[list(wanted)[i % len(wanted)]] += 1
+    episode = np.concatenate([np.full(n, e) for e, n in wanted.items()])
+    candidate = np.concatenate([next_candidate[e] + np.arange(n) for e, n in wanted.items()])
+    for e, n in wanted.items():
+        next_candidate[e] += n
+    return episode, candidate
+
+
+def _new_grasp_records(key, spec, obj, plan: GraspCandidates, config: GraspConfig, fingers: int
+                       ) -> tuple[Records, np.ndarray]:
+    """Records of a batch of candidates, each field (B, fingers, ...), and their validity (B,)."""
+    simulate = simulate_grasps if fingers == 1 else simulate_two_sensor_grasps
+    result = simulate(key, spec, obj, plan.T_world_object, plan.T_world_gripper, config)
+    imprint = result.imprint
+    if fingers == 1:  # give every field a finger axis of 1
+        imprint = jax.tree.map(lambda x: x[:, None], imprint)
+    flat = jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), imprint)
+    count = plan.turn_rad.shape[0]
+
+    def per_record(x):
+        return jnp.repeat(x, fingers, axis=0)
+
+    records = _common(obj, flat.image, flat.heightmap, flat.mask, flat.T_world_sensor, flat.T_world_gripper,
+                      jax.tree.map(per_record, plan.T_world_object), flat.opening, per_record(result.depth_mm))
+    records.update(turn_rad=per_record(plan.turn_rad), yaw_rad=per_record(plan.yaw_rad))
+    records = {name: np.asarray(value).reshape(count, fingers, *np.shape(value)[1:])
+               for name, value in records.items()}
+    return records, np.asarray(result.valid)
 
 
 def _touch_records(key, spec, obj, plan: TouchPlan) -> tuple[Records, np.ndarray]:

@@ -9,7 +9,7 @@ import trimesh
 
 from tactojax.geometry import heightmap_to_points
 from tactojax.objects import get_object
-from tactojax.simulate import GraspConfig, simulate_grasps
+from tactojax.simulate import GraspConfig, simulate_grasps, simulate_two_sensor_grasps
 
 TOP_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -22,7 +22,7 @@ def top_down_grasps(xs, zs=None):
 
 
 def world_contact_points(result, spec, index):
-    """Touched points (rigid shape) of grasp ``index`` in the world frame, mm."""
+    """Touched points (rigid shape) of grasp ``index`` (or (grasp, finger)) in the world frame, mm."""
     points = heightmap_to_points(result.rigid_heightmap[index], spec.mm_per_px)
     mask = np.asarray(result.imprint.mask[index])
     T_world_sensor = jax.tree.map(lambda x: x[index], result.imprint.T_world_sensor)
@@ -83,3 +83,21 @@ def test_mesh_grasp_contact_lies_on_the_mesh(small_spec):
         points = world_contact_points(result, small_spec, index)
         distance = np.abs(trimesh.proximity.signed_distance(brick.solid.mesh, points))
         assert np.max(distance) < 1e-2
+
+
+def test_two_sensor_grasp_presses_both_gels(small_spec):
+    box = get_object("cuboid")  # 80 x 20 x 25 mm, thinnest (20 mm) along y
+    shifted = top_down_grasps([0.0, 10.0]) @ jaxlie.SE3.from_translation(jnp.array([0.0, 4.0, 0.0]))
+    result = simulate_two_sensor_grasps(jax.random.key(5), small_spec, box, jaxlie.SE3.identity(), shifted)
+    assert np.all(np.asarray(result.valid))
+    assert result.imprint.image.shape == (2, 2, 60, 80, 3)
+    # Each gel presses 1 mm into its face, and the wrist centres the gripper on the box.
+    np.testing.assert_allclose(result.imprint.opening, 20.0 - 2.0, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(result.imprint.T_world_gripper.translation())[..., 1], 0.0, atol=1e-3)
+    for finger, face_y in ((0, -10.0), (1, 10.0)):  # the sensor jaw (+y gripper) is at world -y
+        heightmap = np.asarray(result.rigid_heightmap[:, finger])
+        mask = np.asarray(result.imprint.mask[:, finger])
+        np.testing.assert_allclose(heightmap[mask], 1.0, atol=1e-4)
+        for grasp in range(2):
+            points = world_contact_points(result, small_spec, (grasp, finger))
+            np.testing.assert_allclose(points[:, 1], face_y, atol=1e-3)
