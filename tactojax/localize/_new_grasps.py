@@ -107,10 +107,11 @@ def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BI
 
 def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3):
     """RMSE over a set of touches (T,) and its symmetry-aware value; the first touch's pose errors."""
-    per_touch = moment_rmse(mean, covariance, T_true, T_estimate)  # (T,)
+    per_touch_rmse = jax.vmap(moment_rmse)  # over touches, each with its own cloud
+    per_touch = per_touch_rmse(mean, covariance, T_true, T_estimate)  # (T,)
     count = jnp.maximum(jnp.sum(valid), 1)
     rmse = jnp.sqrt(jnp.sum(jnp.where(valid, per_touch**2, 0.0)) / count)
-    per_symmetry = jax.vmap(lambda S: moment_rmse(mean, covariance, T_true, S @ T_estimate))(symmetries)  # (S, T)
+    per_symmetry = jax.vmap(lambda S: per_touch_rmse(mean, covariance, T_true, S @ T_estimate))(symmetries)  # (S, T)
     symmetric = jnp.sqrt(jnp.min(jnp.sum(jnp.where(valid, per_symmetry**2, 0.0), axis=1)) / count)
     first_true, first_estimate = (jax.tree.map(lambda x: x[0], T) for T in (T_true, T_estimate))
     rotation = jnp.rad2deg(jnp.linalg.norm((first_true.inverse() @ first_estimate).rotation().log()))
