@@ -284,8 +284,10 @@ def update_belief(
         exclude: a map imprint never used as a source (leave-one-out), -1 for none.
 
     Returns:
-        the updated belief; with no contact anywhere, every slot empty (never NaN).
+        the updated belief (never NaN); a touch without contact changes nothing (before any
+        touch with contact, every hypothesis slot stays empty: no estimate).
     """
+    before = belief
     first = ~jnp.any(belief.touch_valid)
     belief = remember(belief, evidence, T_reference_touch)
     T_object_touch, new_scores = candidates(view, views, evidence, feature, opening, settings, exclude)
@@ -309,4 +311,6 @@ def update_belief(
     log_weights = kept - jax.nn.logsumexp(jnp.where(any_valid, kept, 0.0))
     log_weights = jnp.where(any_valid & jnp.isfinite(kept), log_weights, -jnp.inf)
     poses = jaxlie.SE3(jnp.where(jnp.isfinite(poses.wxyz_xyz), poses.wxyz_xyz, jaxlie.SE3.identity().wxyz_xyz))
-    return belief.replace(T_object_reference=poses, log_weights=log_weights)
+    after = belief.replace(T_object_reference=poses, log_weights=log_weights)
+    contact = jnp.any(evidence.contact_valid)
+    return jax.tree.map(lambda new, old: jnp.where(contact, new, old), after, before)
