@@ -9,7 +9,7 @@ from tactojax.cli import (
     _calibrate, _demo, _eval_localization, _eval_shape, _fit_shape, _identify, _info, _localize, _localize_live,
     _map, _record, _show, _simulate, _train, _train_features,
 )
-from tactojax.cli import _import_bag
+from tactojax.cli import _import_bag, _view
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -22,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
                    _eval_localization, _identify, _localize, _record, _localize_live, _demo):
         module.add_parser(commands)
     _import_bag.add_parser(commands)
+    _view.add_parser(commands)
     return parser
 
 
