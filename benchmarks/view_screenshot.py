@@ -10,7 +10,11 @@ screenshot, and stops both processes it started. Run from the repository root, e
     tactojax simulate gum_box --scale 0.5 --grid-mm 20 --yaws-deg 0 --out data/gum
     tactojax simulate gum_box --scale 0.5 --grid-mm 30 --yaws-deg 20 --turns-deg 0 90 --out data/gum-test
     tactojax map data/gum --out gum.npz
-    python benchmarks/view_screenshot.py gum.npz --test data/gum-test --out view.png [--estimates est.json]
+    python benchmarks/view_screenshot.py gum.npz --test data/gum-test --example-estimates est.json --out view.png
+
+``--example-estimates PATH`` writes (then shows) stand-in estimates of the test touches: their true
+poses shifted by N(0, 2 mm) per axis (seed 0), probability 0.8, and on every odd touch a belief
+of four hypotheses (0.6, 0.25, 0.1, 0.05) spread 0, 4, 8, 12 mm: the README's screenshot.
 """
 
 from __future__ import annotations
@@ -30,6 +34,30 @@ from pathlib import Path
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--enable-unsafe-swiftshader"]
+
+
+def write_example_estimates(test: str, path: str) -> None:
+    import numpy as np
+
+    from tactojax.viz import read_test_touches
+
+    touches = read_test_touches(test)
+    rng = np.random.default_rng(0)
+    entries = []
+    for index, (object_id, pose) in enumerate(zip(touches["object_id"], touches["T_object_sensor"])):
+        estimate = pose.copy()
+        estimate[4:] += rng.normal(0, 2, 3)
+        entry = {"object_id": str(object_id), "T_object_sensor_wxyz_xyz": estimate.tolist(), "probability": 0.8,
+                 "touch": index}
+        if index % 2 == 1:  # touch 9 (the last, shown) has a belief
+            hypotheses = []
+            for k, probability in enumerate([0.6, 0.25, 0.1, 0.05]):
+                hypothesis = pose.copy()
+                hypothesis[4:] += rng.normal(0, 4, 3) * k
+                hypotheses.append({"T_object_sensor_wxyz_xyz": hypothesis.tolist(), "probability": probability})
+            entry["belief"] = hypotheses
+        entries.append(entry)
+    Path(path).write_text(json.dumps(entries))
 
 
 def free_port() -> int:
@@ -62,6 +90,7 @@ def main() -> None:
     parser.add_argument("maps", nargs="+")
     parser.add_argument("--test")
     parser.add_argument("--estimates")
+    parser.add_argument("--example-estimates", metavar="PATH", help="write stand-in estimates there and show them")
     parser.add_argument("--out", default="view.png")
     parser.add_argument("--wait-s", type=float, default=25.0, help="time the viewer gets to load and draw")
     parser.add_argument("--size", default="1600,1000")
@@ -69,6 +98,11 @@ def main() -> None:
     for tool in ("chromium", "chromedriver"):
         if shutil.which(tool) is None:
             sys.exit(f"{tool} not found: apt-get install -y chromium chromium-driver")
+    if args.example_estimates:
+        if not args.test:
+            sys.exit("--example-estimates needs --test")
+        write_example_estimates(args.test, args.example_estimates)
+        args.estimates = args.example_estimates
     web_port, grpc_port, driver_port = free_port(), free_port(), free_port()
     view = [sys.executable, "-c", "import sys; from tactojax.cli import main; sys.exit(main(sys.argv[1:]))",
             "view", *args.maps, "--serve", "--web-port", str(web_port),

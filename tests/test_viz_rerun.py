@@ -112,8 +112,10 @@ def test_a_recording_holds_the_maps_touches_estimates_and_beliefs(tmp_path, cyli
     assert [r["Scalars:scalars"][0] for r in rows["/metrics/probability"]] == pytest.approx([0.9, 0.7])
 
     # Beliefs: one point per hypothesis, bigger and more opaque the more probable.
-    beliefs = rows["/maps/cylinder/belief"]
-    assert [r["touch"] for r in beliefs] == [1, 2] and len(beliefs[1]["Points3D:positions"]) == 3
+    beliefs = rows["/maps/cylinder/belief"]  # touch 0 has none: the entity is cleared there
+    assert [(r["touch"], r.get("Points3D:positions") is None) for r in beliefs] == [(0, True), (1, False), (2, False)]
+    beliefs = beliefs[1:]
+    assert len(beliefs[1]["Points3D:positions"]) == 3
     np.testing.assert_allclose(np.array(beliefs[1]["Points3D:positions"])[:, 2] - true[2, 6], [0, 5, -5], atol=1e-4)
     radii, alphas = beliefs[1]["Points3D:radii"], [c & 255 for c in beliefs[1]["Points3D:colors"]]
     assert radii[0] > radii[1] > radii[2] and alphas[0] > alphas[1] > alphas[2]

@@ -141,6 +141,11 @@ def log_estimate(recording, entry: Mapping, *, points_sensor: np.ndarray | None 
     recording.set_time("touch", sequence=int(entry["touch"]))
     estimated = np.asarray(entry["T_object_sensor_wxyz_xyz"], np.float64)
     recording.log(f"{root}/estimate/frame", _frame(estimated, axis_mm))
+    # What this entry lacks is cleared, so that the viewer does not show the previous entry's.
+    for missing in ([] if points_sensor is not None else ["estimate/points"]) + \
+            ([] if entry.get("T_object_sensor_true_wxyz_xyz") is not None else ["estimate/true_frame", "estimate/error"]) + \
+            ([] if entry.get("belief") else ["belief"]):
+        recording.log(f"{root}/{missing}", rr.Clear(recursive=False))
     if points_sensor is not None:
         points = np.asarray(jaxlie.SE3(estimated) @ np.asarray(points_sensor, np.float64))
         recording.log(f"{root}/estimate/points", rr.Points3D(points, colors=[0, 190, 255], radii=0.2))
