@@ -176,6 +176,10 @@ def test_ros2_bags_import_one_touch_per_grasp(tmp_path, session, small_spec, kin
     assert (summary.grasps, summary.recorded, summary.stale, summary.missed) == (5, 5, 0, 0)
     assert summary.image_messages == len(timeline(session)[3])
     check_import(tmp_path / "out", session)
+    if kind == "sqlite3":  # the bag's receive times (images 4 ms late) pick and pair the same touches
+        import_bag(bag, tmp_path / "receive", small_spec, image_topic="/tactile/image", stamps="receive",
+                   gripper_topic="/gripper/joint_states", object_id="gum_box", progress=False, **pose)
+        check_import(tmp_path / "receive", session)
     if kind == "mcap":  # the .mcap storage file alone is an MCAP file
         (mcap,) = bag.glob("*.mcap")
         import_bag(mcap, tmp_path / "from_file", small_spec, image_topic="/tactile/image",
