@@ -31,6 +31,10 @@ def add_parser(commands) -> None:
                         help="process every frame in order (default for video files); otherwise always the "
                              "newest frame, skipping those that arrive while a touch is processed")
     parser.add_argument("--json", metavar="PATH", help="write every estimate and the run's statistics as JSON")
+    parser.add_argument("--view", nargs="?", const="spawn", choices=["spawn", "serve"],
+                        help="stream the maps and every estimate to a rerun viewer: spawn one (default) or serve "
+                             "the web viewer on localhost:9090 (needs the viz extra)")
+    parser.add_argument("--view-save", metavar="FILE.rrd", help="stream them to a rerun recording file instead")
     parser.set_defaults(run=run)
 
 
@@ -66,6 +70,7 @@ def run(args) -> int:
     print("compiling the touch program ...", flush=True)
     localizer = Localizer(maps, model, encoder, method=args.method)
     print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}")
+    view = _open_view(args, maps)
     source = camera_source(args.camera)
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
     gripper = WSG50(args.gripper) if args.gripper else None
@@ -80,10 +85,16 @@ def run(args) -> int:
                 statistics.add(frame, estimate)
                 bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}")
                 records.append({"frame": frame.index, "timestamp_s": frame.timestamp_s, **estimate.as_dict()})
+                if view is not None:
+                    from tactojax.viz import log_live_estimate
+                    log_live_estimate(view, frame.index, records[-1], image=frame.image)
         statistics.recompilations = compiles.count
     finally:
         if gripper is not None:
             gripper.close()
+        if view is not None:
+            view.flush()
+            view.disconnect()
     summary = statistics.summary()
     if records:
         last = records[-1]
@@ -101,3 +112,18 @@ def run(args) -> int:
         write_json(args.json, {"maps": list(localizer.object_ids), "method": localizer.method.name,
                                "compile_s": localizer.compile_s, "summary": summary, "estimates": records})
     return 0
+
+
+def _open_view(args, maps):
+    """A rerun recording with the maps logged, for --view / --view-save, or None."""
+    if args.view is None and args.view_save is None:
+        return None
+    if args.view is not None and args.view_save is not None:
+        raise ValueError("give --view or --view-save, not both")
+    from tactojax.viz import log_maps, open_recording
+
+    recording, url = open_recording(save=args.view_save, serve=args.view == "serve", spawn=args.view == "spawn")
+    log_maps(recording, maps)
+    if url:
+        print(f"web viewer: {url}", flush=True)
+    return recording

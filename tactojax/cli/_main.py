@@ -9,6 +9,7 @@ from tactojax.cli import (
     _calibrate, _demo, _eval_localization, _eval_shape, _fit_shape, _identify, _info, _localize, _localize_live,
     _map, _record, _show, _simulate, _train, _train_features,
 )
+from tactojax.cli import _import_bag, _view
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -20,6 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
     for module in (_simulate, _info, _train, _eval_shape, _calibrate, _train_features, _map, _fit_shape, _show,
                    _eval_localization, _identify, _localize, _record, _localize_live, _demo):
         module.add_parser(commands)
+    _import_bag.add_parser(commands)
+    _view.add_parser(commands)
     return parser
 
 

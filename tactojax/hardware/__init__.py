@@ -14,11 +14,17 @@ code runs against the simulator:
   :func:`simulated_cell` for the whole simulated cell;
 - recording: :class:`Recorder`, :func:`record_protocol` (the mapping protocol on any robot),
   :func:`record_grasps` (passive);
-- live loop: :func:`live_estimates` runs a :class:`~tactojax.localize.Localizer` on frames.
+- live loop: :func:`live_estimates` runs a :class:`~tactojax.localize.Localizer` on frames;
+- recorded ROS sessions: :func:`import_bag` turns a ROS 1/2 bag or MCAP file into a dataset,
+  touches chosen and paired as a live recording does (``rosbags``, optional extra ``ros``).
 
 Importing this package imports OpenCV and pyserial; the numerical core never does.
 """
 
+from tactojax.hardware._bag_import import BagImportSummary as BagImportSummary
+from tactojax.hardware._bag_import import GraspDetection as GraspDetection
+from tactojax.hardware._bag_import import detect_grasps as detect_grasps
+from tactojax.hardware._bag_import import import_bag as import_bag
 from tactojax.hardware._camera import Camera as Camera
 from tactojax.hardware._camera import CameraError as CameraError
 from tactojax.hardware._camera import LOSSLESS_FOURCC as LOSSLESS_FOURCC
@@ -47,6 +53,12 @@ from tactojax.hardware._recorder import RecordingSummary as RecordingSummary
 from tactojax.hardware._recorder import record_grasps as record_grasps
 from tactojax.hardware._recorder import record_protocol as record_protocol
 from tactojax.hardware._robot import Robot as Robot
+from tactojax.hardware._rosbag import BagError as BagError
+from tactojax.hardware._rosbag import GripperJoints as GripperJoints
+from tactojax.hardware._rosbag import TransformChain as TransformChain
+from tactojax.hardware._rosbag import bag_topics as bag_topics
+from tactojax.hardware._rosbag import open_bag as open_bag
+from tactojax.hardware._rosbag import read_streams as read_streams
 from tactojax.hardware._simulated import PosePublisher as PosePublisher
 from tactojax.hardware._simulated import SimulatedCamera as SimulatedCamera
 from tactojax.hardware._simulated import SimulatedCell as SimulatedCell
