@@ -131,6 +131,9 @@ class Localizer:
         self.method = parse_method(method)
         if self.method.kind == "random":
             raise ValueError("a live localizer needs a retrieval method (cti, cti-icp-N, ...), not random")
+        if self.method.kind == "belief":
+            raise ValueError("the live localizer does not run the belief yet: use tactojax.localize.update_belief "
+                             "(see the README, 'The pose belief')")
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
         self._operands = (model, encoder, MapLibrary.from_maps(maps),

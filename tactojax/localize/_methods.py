@@ -235,6 +235,9 @@ def localize(
     Returns:
         :class:`PoseEstimate`; never NaN (``converged`` False when it failed).
     """
+    if parse_method(method).kind == "belief":
+        raise ValueError("localize() runs one-shot methods; the belief keeps state across touches: use "
+                         "update_belief with build_surface_views (tactojax.localize)")
     view = as_localization_map(tactile_map)
     # NumPy scalars, not jnp.asarray: they travel with the call instead of costing a device
     # dispatch each (about 0.3 ms per touch on CPU), and are strongly typed (no recompilation).

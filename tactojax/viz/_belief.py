@@ -25,6 +25,7 @@ def new_grasps_figure(curves: dict[str, dict], calibrations: dict[str, dict]) ->
             curve_axis.scatter([1], [median], marker="x", color=line.get_color(), zorder=3)
             if index == 0:
                 curve_axis.annotate(method, (1, median), fontsize=7, xytext=(4, 0), textcoords="offset points")
+    curve_axis.set_xticks(sorted({g for curve in curves.values() for g in curve["grasps"]} | {1}))
     curve_axis.axhline(2.0, color="grey", linestyle=":", linewidth=1)
     curve_axis.set_xlabel("grasps fused")
     curve_axis.set_ylabel("median RMSE, mm (x: single-touch baselines)")
