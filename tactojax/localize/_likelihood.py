@@ -19,7 +19,6 @@ independent, so the raw sum is far too confident; see :class:`LikelihoodSettings
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -31,6 +30,7 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
 from tactojax.localize._correspondences import matvec
+from tactojax.localize._methods import pixel_priority
 from tactojax.localize._views import FREE_HEIGHT_MM, SurfaceViews
 
 
@@ -65,12 +65,6 @@ class TouchEvidence:
     free_valid: Bool[Array, "F"]
 
 
-@functools.lru_cache(maxsize=8)
-def _pixel_priority(height_px: int, width_px: int, seed: int) -> np.ndarray:
-    order = np.random.default_rng(seed).permutation(height_px * width_px)
-    return (order / (height_px * width_px)).astype(np.float32)
-
-
 def _draw(flat: Bool[Array, "N"], priority: np.ndarray, count: int) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
     """``count`` pixels drawn uniformly without replacement where ``flat`` holds (fixed order)."""
     _, index = jax.lax.top_k(jnp.asarray(priority) + flat.astype(jnp.float32), count)
@@ -95,9 +89,9 @@ def touch_evidence(
     row, col = jnp.divmod(jnp.arange(height_px * width_px), width_px)
     x = (col - (width_px - 1) / 2.0) * mm_per_px
     y = (row - (height_px - 1) / 2.0) * mm_per_px
-    contact_index, contact_valid = _draw(mask.reshape(-1), _pixel_priority(height_px, width_px, 1), contact_points)
+    contact_index, contact_valid = _draw(mask.reshape(-1), pixel_priority(height_px, width_px, 1), contact_points)
     free = ~mask.reshape(-1) & (flat_height < FREE_HEIGHT_MM)
-    free_index, free_valid = _draw(free, _pixel_priority(height_px, width_px, 2), free_points)
+    free_index, free_valid = _draw(free, pixel_priority(height_px, width_px, 2), free_points)
     contact = jnp.stack([x[contact_index], y[contact_index], -flat_height[contact_index]], axis=-1)
     free_xyz = jnp.stack([x[free_index], y[free_index], jnp.zeros(free_points)], axis=-1)
     return TouchEvidence(contact=contact, contact_valid=contact_valid & ~jnp.all(~mask),

@@ -74,9 +74,9 @@ def parse_method(method: str | Method) -> Method:
 
 
 @functools.lru_cache(maxsize=8)
-def _pixel_priority(height_px: int, width_px: int) -> np.ndarray:
+def pixel_priority(height_px: int, width_px: int, seed: int = 0) -> np.ndarray:
     """A fixed random order of the pixels (in [0, 1)): the same draw for every query."""
-    order = np.random.default_rng(0).permutation(height_px * width_px)
+    order = np.random.default_rng(seed).permutation(height_px * width_px)
     return (order / (height_px * width_px)).astype(np.float32)
 
 
@@ -92,7 +92,7 @@ def query_points(
     """
     height_px, width_px = query.heightmap.shape
     flat_mask = query.mask.reshape(-1)
-    scores = jnp.asarray(_pixel_priority(height_px, width_px)) + flat_mask.astype(jnp.float32)
+    scores = jnp.asarray(pixel_priority(height_px, width_px)) + flat_mask.astype(jnp.float32)
     _, index = jax.lax.top_k(scores, count)
     row, col = index // width_px, index % width_px
     x = (col - (width_px - 1) / 2.0) * mm_per_px
