@@ -22,7 +22,7 @@ once per map size and settings, and a belief is a pytree that a control loop car
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp

@@ -25,13 +25,14 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import jaxlie
-import numpy as np
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax.geometry import pixel_grid
+from tactojax.localize._consistency import FREE_HEIGHT_MM
 from tactojax.localize._correspondences import matvec
-from tactojax.localize._methods import pixel_priority
-from tactojax.localize._views import FREE_HEIGHT_MM, SurfaceViews
+from tactojax.localize._methods import draw_pixels, pixel_priority
+from tactojax.localize._views import SurfaceViews
 
 
 @dataclass(frozen=True)
@@ -65,12 +66,6 @@ class TouchEvidence:
     free_valid: Bool[Array, "F"]
 
 
-def _draw(flat: Bool[Array, "N"], priority: np.ndarray, count: int) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
-    """``count`` pixels drawn uniformly without replacement where ``flat`` holds (fixed order)."""
-    _, index = jax.lax.top_k(jnp.asarray(priority) + flat.astype(jnp.float32), count)
-    return index, flat[index]
-
-
 def touch_evidence(
     heightmap: Float[Array, "H W"],
     mask: Bool[Array, "H W"],
@@ -86,12 +81,10 @@ def touch_evidence(
     """
     height_px, width_px = heightmap.shape
     flat_height = heightmap.reshape(-1)
-    row, col = jnp.divmod(jnp.arange(height_px * width_px), width_px)
-    x = (col - (width_px - 1) / 2.0) * mm_per_px
-    y = (row - (height_px - 1) / 2.0) * mm_per_px
-    contact_index, contact_valid = _draw(mask.reshape(-1), pixel_priority(height_px, width_px, 1), contact_points)
+    x, y = pixel_grid(height_px, width_px, mm_per_px).reshape(-1, 2).T
+    contact_index, contact_valid = draw_pixels(mask.reshape(-1), pixel_priority(height_px, width_px, 1), contact_points)
     free = ~mask.reshape(-1) & (flat_height < FREE_HEIGHT_MM)
-    free_index, free_valid = _draw(free, pixel_priority(height_px, width_px, 2), free_points)
+    free_index, free_valid = draw_pixels(free, pixel_priority(height_px, width_px, 2), free_points)
     contact = jnp.stack([x[contact_index], y[contact_index], -flat_height[contact_index]], axis=-1)
     free_xyz = jnp.stack([x[free_index], y[free_index], jnp.zeros(free_points)], axis=-1)
     return TouchEvidence(contact=contact, contact_valid=contact_valid & ~jnp.all(~mask),

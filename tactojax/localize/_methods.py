@@ -80,6 +80,15 @@ def pixel_priority(height_px: int, width_px: int, seed: int = 0) -> np.ndarray:
     return (order / (height_px * width_px)).astype(np.float32)
 
 
+def draw_pixels(
+    flat: Bool[Array, "N"], priority: np.ndarray, count: int
+) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
+    """``count`` pixels drawn uniformly without replacement where ``flat`` holds, by the fixed
+    order ``priority`` (:func:`pixel_priority`), padded with pixels where it does not; and valid."""
+    _, index = jax.lax.top_k(jnp.asarray(priority) + flat.astype(jnp.float32), count)
+    return index, flat[index]
+
+
 def query_points(
     query: Query, mm_per_px: float, count: int = POINTS_PER_QUERY
 ) -> tuple[Float[Array, "P 3"], Bool[Array, "P"]]:
@@ -92,13 +101,12 @@ def query_points(
     """
     height_px, width_px = query.heightmap.shape
     flat_mask = query.mask.reshape(-1)
-    scores = jnp.asarray(pixel_priority(height_px, width_px)) + flat_mask.astype(jnp.float32)
-    _, index = jax.lax.top_k(scores, count)
+    index, valid = draw_pixels(flat_mask, pixel_priority(height_px, width_px), count)
     row, col = index // width_px, index % width_px
     x = (col - (width_px - 1) / 2.0) * mm_per_px
     y = (row - (height_px - 1) / 2.0) * mm_per_px
     points = jnp.stack([x, y, -query.heightmap.reshape(-1)[index]], axis=-1)
-    return points, flat_mask[index]
+    return points, valid
 
 
 def random_estimate(key: PRNGKeyArray, view: LocalizationMap, exclude) -> PoseEstimate:

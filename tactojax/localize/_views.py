@@ -27,16 +27,12 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax.localize._consistency import FREE_HEIGHT_MM
 from tactojax.localize._correspondences import _cells, candidate_poses, matvec, pixel_lookup
 from tactojax.localize._map import LocalizationMap
-
-FREE_HEIGHT_MM = 0.08
-"""Outside the contact mask, a pixel indented less than this is free gel, mm."""
-
 
 @dataclass(frozen=True)
 class ViewSettings:
@@ -76,8 +72,9 @@ class SurfaceViews:
     def lookup(
         self, view: Int[Array, "*batch"], p_view: Float[Array, "*batch 3"]
     ) -> tuple[Float[Array, "*batch"], Bool[Array, "*batch"], Float[Array, "*batch"]]:
-        """Surface z (bilinear), whether it is known (all four cells), and free_z (the largest
-        of the four cells) under points ``p_view`` in the frames of views ``view``."""
+        """Surface z (bilinear over the known corners of its cell), whether it is known (any
+        corner), and free_z (the largest of the four corners) under points ``p_view`` in the
+        frames of views ``view``."""
         count, rows, cols = self.surface_z.shape
         col = p_view[..., 0] / self.pitch_mm + (cols - 1) / 2.0
         row = p_view[..., 1] / self.pitch_mm + (rows - 1) / 2.0
@@ -120,7 +117,7 @@ def _plane_z(point: Float[Array, "*b 3"], normal: Float[Array, "*b 3"], xy: Floa
     return point[..., 2] - jnp.sum(normal[..., :2] * (xy - point[..., :2]), axis=-1) / nz
 
 
-def _one_view(view: LocalizationMap, surfaces, index, neighbours, neighbours_valid, grid_xy, settings):
+def _one_view(view: LocalizationMap, surfaces, index, neighbours, neighbours_valid, grid_xy):
     """surface_z and free_z of view ``index`` on ``grid_xy`` (R, C, 2)."""
     T_view = jax.tree.map(lambda x: x[index], view.T_object_sensor)
     T_neighbour_view = candidate_poses(view, neighbours) @ T_view  # (N,) view frame -> neighbour frame
@@ -182,7 +179,7 @@ def build_surface_views(
 
     def one(args):
         index, nbrs, nbrs_valid = args
-        return _one_view(view, surfaces[nbrs], index, nbrs, nbrs_valid, grid_xy, settings)
+        return _one_view(view, surfaces[nbrs], index, nbrs, nbrs_valid, grid_xy)
 
     surface_z, free_z = jax.lax.map(one, (indices, neighbours, neighbours_valid), batch_size=16)
     return SurfaceViews(surface_z=surface_z, free_z=free_z, neighbours=neighbours,
