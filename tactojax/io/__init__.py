@@ -7,6 +7,10 @@ from tactojax.io._dataset import DatasetWriter as DatasetWriter
 from tactojax.io._dataset import dataset_summary as dataset_summary
 from tactojax.io._dataset import infer_schema as infer_schema
 from tactojax.io._dataset import open_dataset as open_dataset
+from tactojax.io._dataset import ChunkProblem as ChunkProblem
+from tactojax.io._dataset import CorruptChunkError as CorruptChunkError
+from tactojax.io._dataset_repair import DatasetRepair as DatasetRepair
+from tactojax.io._dataset_repair import repair_dataset as repair_dataset
 from tactojax.io._imprints import sensor_metadata as sensor_metadata
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
@@ -64,6 +68,10 @@ __all__ = [
     "infer_schema",
     "load_imprints",
     "open_dataset",
+    "ChunkProblem",
+    "CorruptChunkError",
+    "DatasetRepair",
+    "repair_dataset",
     "simulate_to_dataset",
     "CorruptMapError",
     "export_ply",
