@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 
 import jax
 
@@ -31,12 +32,16 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from tactojax.io import simulate_to_dataset
+    from tactojax.io import MeshRepairedWarning, simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
     from tactojax.simulate import CalibrationProtocol, GraspConfig, MappingProtocol
 
-    obj = resolve_object(args.object, units=args.mesh_units)
+    with warnings.catch_warnings():  # said below, once, without a source line
+        warnings.simplefilter("ignore", MeshRepairedWarning)
+        obj = resolve_object(args.object, units=args.mesh_units)
+    if obj.mesh_repair:
+        print(f"{args.object}: {obj.mesh_repair['summary']}")
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))

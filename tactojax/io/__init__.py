@@ -31,6 +31,9 @@ from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
 from tactojax.io._mesh import check_mesh as check_mesh
 from tactojax.io._mesh import load_mesh as load_mesh
 from tactojax.io._mesh import ycb_mesh_path as ycb_mesh_path
+from tactojax.io._mesh_repair import MeshRepair as MeshRepair
+from tactojax.io._mesh_repair import MeshRepairedWarning as MeshRepairedWarning
+from tactojax.io._mesh_repair import repair_mesh as repair_mesh
 from tactojax.io._presses import load_ball_presses as load_ball_presses
 from tactojax.io._shape import CorruptCheckpointError as CorruptCheckpointError
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
@@ -84,6 +87,9 @@ __all__ = [
     "check_mesh",
     "load_mesh",
     "ycb_mesh_path",
+    "MeshRepair",
+    "MeshRepairedWarning",
+    "repair_mesh",
     "load_ball_presses",
     "CorruptCheckpointError",
     "bundled_shape_models",
