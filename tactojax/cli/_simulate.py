@@ -7,6 +7,10 @@ import warnings
 
 import jax
 
+DEFAULT_SCALE = 0.5
+"""The default resolution factor, as in ``tactojax record`` and ``tactojax demo``: the bundled shape
+model (``bundled:fast-gelslim-0.5``) reads gelslim images at this resolution."""
+
 
 def add_parser(commands) -> None:
     parser = commands.add_parser(
@@ -18,7 +22,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
     parser.add_argument("--protocol", choices=["mapping", "calibration"], default="mapping")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
-    parser.add_argument("--scale", type=float, default=1.0, help="sensor resolution factor in (0, 1] (default 1)")
+    parser.add_argument("--scale", type=float, default=DEFAULT_SCALE,
+                        help=f"sensor resolution factor in (0, 1] (default {DEFAULT_SCALE}: gelslim at 160 x 120 px, "
+                             "0.2 mm/px, the bundled shape model's resolution, so that `tactojax map` reads the "
+                             "dataset with its default model; 1 is full resolution)")
     parser.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
     parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0], help="mapping yaws, degrees")
     parser.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0], help="object turns, degrees")
