@@ -406,14 +406,18 @@ class Dataset:
         return problems
 
     def _corrupt(self, fields: tuple[str, ...]) -> CorruptChunkError:
-        """The error naming every corrupt chunk, raised after the first one was met."""
+        """The error naming every corrupt chunk, once the first one was met (reads all chunks)."""
         return CorruptChunkError(self.path, self.check(fields), len(self))
 
     def iter_chunks(self, fields: Iterable[str] | None = None) -> Iterator[Record]:
         """Yield each chunk as ``{field: (count, *shape) array}``, in record order."""
         names = self._fields(fields)
         for index in range(len(self._chunks)):
-            yield self._load_chunk(index, names)
+            try:
+                chunk = self._load_chunk(index, names)
+            except CorruptChunkError:
+                raise self._corrupt(names) from None
+            yield chunk
 
     def read(self, fields: Iterable[str] | None = None,
              indices: slice | np.ndarray | Iterable[int] | None = None) -> Record:
