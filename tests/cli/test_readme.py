@@ -43,17 +43,17 @@ SMALLER = {
 """Flags appended to each command's README line: small grids, few touches and steps."""
 
 SLOW = {
-    "demo": "the whole paper in one command: 85 s even for 2 objects on a 40 mm grid; the lines after it "
+    "demo": "the whole paper in one command: 70 s even for 2 objects on a 40 mm grid; the lines after it "
             "run each of its steps",
-    "train": "compiles a training step: 17 s for 3 steps",
-    "eval-shape": "reads the model that `train` writes; with --robustness, 13 s",
-    "calibrate": "fits taxim's real GelSight frames (10 s) and writes a model that no later line reads",
-    "eval-localization": "leave-one-out with four methods: 66 s for 3 touches a map, mostly compiling",
-    "train-features": "compiles contrastive training: 40 s for 2 steps",
-    "localize-live": "compiles the whole touch program once: 22 s for 3 frames",
+    "train": "compiles a training step: 12 s for 3 steps",
+    "eval-shape": "reads the model that `train` writes; 7 s with --robustness",
+    "calibrate": "fits taxim's real GelSight frames (8 s) and writes a model that no later line reads",
+    "eval-localization": "leave-one-out with four methods: 44 s for 3 touches a map, mostly compiling",
+    "train-features": "compiles contrastive training: 21 s for 2 steps",
+    "localize-live": "compiles the whole touch program once: 9 s for 3 frames",
 }
-"""Commands skipped unless TACTOJAX_README_ALL=1, and why (seconds measured on 2 busy cores with the
-SMALLER flags). The whole list, these included, took 5.8 min there."""
+"""Commands skipped unless TACTOJAX_README_ALL=1, and why (seconds on 2 quiet cores with the SMALLER
+flags). All 25 lines took 3.7 min that way; the others take 49 s."""
 
 
 PRINTS = {
