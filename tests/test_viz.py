@@ -46,3 +46,20 @@ def test_map_size_figure_draws_one_curve_per_method():
     axis = map_size_figure(results).axes[0]
     assert [line.get_label() for line in axis.lines] == ["cti", "cti-icp-5"]
     np.testing.assert_allclose(axis.lines[1].get_xydata(), [[50.0, 8.0], [100.0, 4.0]])
+
+
+def test_map_figure_shows_a_thin_object_at_true_scale_along_its_thinnest_axis(tmp_path):
+    from tactojax.viz import tactile_map_figure
+    from tactojax.viz._map import _map_figure
+
+    # Scissors-like cloud: 200 mm along x, 14 mm along y (the closing axis), 90 mm along z.
+    points = np.random.default_rng(0).uniform([-100, -7, -45], [100, 7, 45], (4000, 3))
+    oblique, projection = _map_figure(points, title="", examples=None, mm_per_px=0.2).axes[:2]
+    assert projection.name == "rectilinear" and projection.get_aspect() == 1.0  # mm on both axes alike
+    assert (projection.get_xlabel(), projection.get_ylabel()) == ("x (mm)", "z (mm)")
+    assert projection.get_title().startswith("seen from -y")
+    np.testing.assert_allclose(projection.collections[0].get_offsets(), points[np.argsort(-points[:, 1])][:, [0, 2]])
+    assert list(oblique.get_yticks()) == [] and oblique.get_ylabel() == "y: -7 to 7 mm"  # too thin for ticks
+    assert len(oblique.get_xticks()) >= 3
+    path = tactile_map_figure(points, tmp_path / "map.png", title="thin")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -30,6 +30,10 @@ def run(args) -> int:
     print(f"imprints  {summary['count']} in {summary['chunks']} chunks ({summary['bytes'] / 1e6:.1f} MB)")
     print(f"sensor    {sensor.get('name', '?')}, {sensor.get('mm_per_px', float('nan')):.4f} mm/px, image {image_shape}")
     print(f"protocol  {protocol.get('name', '?')}")
+    for repair in metadata.get("repairs", []):  # records dropped by `tactojax repair`
+        lost = repair.get("lost", [])
+        print(f"repaired  {repair.get('date', '?')}: lost {sum(c.get('records', 0) for c in lost)} records "
+              f"({', '.join(c.get('file', '?') for c in lost)})")
     groups = summary.get("groups") or {}
     if groups:
         print()

@@ -42,7 +42,8 @@ def run(args) -> int:
     grasps = read_grasps(args.data, object_id=args.object)
     if abs(grasps["mm_per_px"] - model.mm_per_px) > 1e-6:
         raise ValueError(f"the dataset's pixel pitch ({grasps['mm_per_px']} mm) is not the shape model's "
-                         f"({model.mm_per_px} mm): train or choose a model for this sensor")
+                         f"({model.mm_per_px} mm): train or choose a model for this sensor (the bundled model "
+                         "reads gelslim at `tactojax simulate --scale 0.5`, the default)")
     noise_key, sample_key = jax.random.split(jax.random.key(args.seed))
     T_world_gripper, openings = grasps["T_world_gripper"], grasps["openings"]
     if args.kinematic_noise != "none":

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import time
+import warnings
 
 import jax
+
+DEFAULT_SCALE = 0.5
+"""The default resolution factor, as in ``tactojax record`` and ``tactojax demo``: the bundled shape
+model (``bundled:fast-gelslim-0.5``) reads gelslim images at this resolution."""
 
 
 def add_parser(commands) -> None:
@@ -18,7 +23,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
     parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps"], default="mapping")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
-    parser.add_argument("--scale", type=float, default=1.0, help="sensor resolution factor in (0, 1] (default 1)")
+    parser.add_argument("--scale", type=float, default=DEFAULT_SCALE,
+                        help=f"sensor resolution factor in (0, 1] (default {DEFAULT_SCALE}: gelslim at 160 x 120 px, "
+                             "0.2 mm/px, the bundled shape model's resolution, so that `tactojax map` reads the "
+                             "dataset with its default model; 1 is full resolution)")
     parser.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
     parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0], help="mapping yaws, degrees")
     parser.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0], help="object turns, degrees")
@@ -36,12 +44,16 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from tactojax.io import simulate_to_dataset
+    from tactojax.io import MeshRepairedWarning, simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
     from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol
 
-    obj = resolve_object(args.object, units=args.mesh_units)
+    with warnings.catch_warnings():  # said below, once, without a source line
+        warnings.simplefilter("ignore", MeshRepairedWarning)
+        obj = resolve_object(args.object, units=args.mesh_units)
+    if obj.mesh_repair:
+        print(f"{args.object}: {obj.mesh_repair['summary']}")
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))

@@ -7,6 +7,10 @@ from tactojax.io._dataset import DatasetWriter as DatasetWriter
 from tactojax.io._dataset import dataset_summary as dataset_summary
 from tactojax.io._dataset import infer_schema as infer_schema
 from tactojax.io._dataset import open_dataset as open_dataset
+from tactojax.io._dataset import ChunkProblem as ChunkProblem
+from tactojax.io._dataset import CorruptChunkError as CorruptChunkError
+from tactojax.io._dataset_repair import DatasetRepair as DatasetRepair
+from tactojax.io._dataset_repair import repair_dataset as repair_dataset
 from tactojax.io._imprints import sensor_metadata as sensor_metadata
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
@@ -27,6 +31,9 @@ from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
 from tactojax.io._mesh import check_mesh as check_mesh
 from tactojax.io._mesh import load_mesh as load_mesh
 from tactojax.io._mesh import ycb_mesh_path as ycb_mesh_path
+from tactojax.io._mesh_repair import MeshRepair as MeshRepair
+from tactojax.io._mesh_repair import MeshRepairedWarning as MeshRepairedWarning
+from tactojax.io._mesh_repair import repair_mesh as repair_mesh
 from tactojax.io._presses import load_ball_presses as load_ball_presses
 from tactojax.io._shape import CorruptCheckpointError as CorruptCheckpointError
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
@@ -65,6 +72,10 @@ __all__ = [
     "infer_schema",
     "load_imprints",
     "open_dataset",
+    "ChunkProblem",
+    "CorruptChunkError",
+    "DatasetRepair",
+    "repair_dataset",
     "simulate_to_dataset",
     "CorruptMapError",
     "export_ply",
@@ -78,6 +89,9 @@ __all__ = [
     "check_mesh",
     "load_mesh",
     "ycb_mesh_path",
+    "MeshRepair",
+    "MeshRepairedWarning",
+    "repair_mesh",
     "load_ball_presses",
     "CorruptCheckpointError",
     "bundled_shape_models",

@@ -29,6 +29,10 @@ files a killed writer left unlisted, and ``.lock`` (the pid of the live writer).
 Writers make every file by writing ``.tmp-*``, fsync and ``os.replace``, and rewrite the
 manifest only after the new chunk is in place, so a dataset killed at any moment still reads
 back every chunk its manifest lists.
+
+A chunk that does not match its manifest entry (missing, truncated, modified) is never skipped:
+reading it raises :class:`CorruptChunkError` naming every such chunk, and
+``tactojax.io.repair_dataset`` (``tactojax repair DIR``) rewrites the manifest without them.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ import json
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +65,32 @@ Record = dict[str, np.ndarray]
 
 class CorruptDatasetError(ValueError):
     """A manifest or chunk file is unreadable, truncated, or disagrees with the manifest."""
+
+
+@dataclass(frozen=True)
+class ChunkProblem:
+    """A chunk listed in a manifest that cannot be read as the manifest describes it."""
+
+    file: str
+    """Its path relative to the dataset directory (``chunks/chunk-000003.npz``)."""
+    count: int
+    """Records the manifest lists in it."""
+    first_record: int
+    """Index of its first record in the dataset."""
+    reason: str
+
+
+class CorruptChunkError(CorruptDatasetError):
+    """One or more chunks cannot be read; ``chunks`` names each, the message says how to repair."""
+
+    def __init__(self, path: Path, chunks: list[ChunkProblem], total: int) -> None:
+        self.path, self.chunks, self.total = Path(path), tuple(chunks), total
+        lost = sum(c.count for c in chunks)
+        items = "; ".join(f"{self.path / c.file}: {c.reason} (records {c.first_record}-"
+                          f"{c.first_record + c.count - 1})" for c in chunks)
+        noun, pronoun = ("a corrupt chunk", "it") if len(chunks) == 1 else (f"{len(chunks)} corrupt chunks", "them")
+        super().__init__(f"dataset {self.path} has {noun}: {items}. `tactojax repair {self.path}` rewrites "
+                         f"the dataset without {pronoun}, keeping the other {total - lost} of {total} records")
 
 
 class DatasetLockedError(RuntimeError):
@@ -334,33 +365,59 @@ class Dataset:
         """Arrays ``(count, *shape)`` of chunk ``index`` after checking its hash and shapes."""
         entry = self._chunks[index]
         path = self.path / entry["file"]
+
+        def corrupt(reason: str) -> CorruptChunkError:
+            problem = ChunkProblem(entry["file"], entry["count"], int(self._offsets[index]), reason)
+            return CorruptChunkError(self.path, [problem], len(self))
+
         try:
             data = path.read_bytes()
         except OSError as error:
-            raise CorruptDatasetError(f"{path}: listed chunk cannot be read ({error})") from None
+            raise corrupt(f"listed chunk cannot be read ({error.strerror or error})") from None
         if hashlib.sha256(data).hexdigest() != entry["sha256"]:
-            raise CorruptDatasetError(f"{path}: sha256 mismatch ({len(data)} bytes; file is "
-                                      "truncated or modified)")
+            raise corrupt(f"sha256 mismatch ({len(data)} bytes; file is truncated or modified)")
         try:
             with np.load(io.BytesIO(data), allow_pickle=False) as archive:
                 arrays = {f: archive[f] for f in fields}
         except Exception as error:  # zip, npy and key errors all mean a bad chunk
-            raise CorruptDatasetError(f"{path}: unreadable chunk ({error!r})") from None
+            raise corrupt(f"unreadable chunk ({error!r})") from None
         for name, array in arrays.items():
             spec = self.schema[name]
             expected = (entry["count"], *spec["shape"])
             kind_ok = array.dtype.kind == "U" if spec["dtype"] == "str" else (
                 array.dtype == np.dtype(spec["dtype"]))
             if array.shape != expected or not kind_ok:
-                raise CorruptDatasetError(f"{path}: field {name!r} is {array.dtype} {array.shape}"
-                                          f", manifest says {spec['dtype']} {expected}")
+                raise corrupt(f"field {name!r} is {array.dtype} {array.shape}, manifest says "
+                              f"{spec['dtype']} {expected}")
         return arrays
+
+    def check(self, fields: Iterable[str] | None = None) -> list[ChunkProblem]:
+        """Every listed chunk that cannot be read as the manifest says ([] when all can).
+
+        Reads every chunk (``fields``: the fields to decode, default all; the hash check
+        covers the whole file either way).
+        """
+        names, problems = self._fields(fields), []
+        for index in range(len(self._chunks)):
+            try:
+                self._load_chunk(index, names)
+            except CorruptChunkError as error:
+                problems.extend(error.chunks)
+        return problems
+
+    def _corrupt(self, fields: tuple[str, ...]) -> CorruptChunkError:
+        """The error naming every corrupt chunk, once the first one was met (reads all chunks)."""
+        return CorruptChunkError(self.path, self.check(fields), len(self))
 
     def iter_chunks(self, fields: Iterable[str] | None = None) -> Iterator[Record]:
         """Yield each chunk as ``{field: (count, *shape) array}``, in record order."""
         names = self._fields(fields)
         for index in range(len(self._chunks)):
-            yield self._load_chunk(index, names)
+            try:
+                chunk = self._load_chunk(index, names)
+            except CorruptChunkError:
+                raise self._corrupt(names) from None
+            yield chunk
 
     def read(self, fields: Iterable[str] | None = None,
              indices: slice | np.ndarray | Iterable[int] | None = None) -> Record:
@@ -384,7 +441,10 @@ class Dataset:
         for index in np.unique(chunk_of).tolist():
             rows = wanted[order][chunk_of == index] - self._offsets[index]
             if self._cache is None or self._cache[0] != (index, names):  # last chunk read
-                self._cache = ((index, names), self._load_chunk(index, names))
+                try:
+                    self._cache = ((index, names), self._load_chunk(index, names))
+                except CorruptChunkError:
+                    raise self._corrupt(names) from None
             for name, array in self._cache[1].items():  # fancy indexing copies
                 pieces[name].append(array[rows])
         inverse = np.empty_like(order)
@@ -413,11 +473,23 @@ def open_dataset(path: str | os.PathLike[str]) -> Dataset:
 def dataset_summary(path: str | os.PathLike[str], *, group_by: str | None = "object_id"
                     ) -> dict[str, Any]:
     """JSON-ready summary: count, chunks, bytes, schema, metadata, and counts per value of
-    the scalar field ``group_by`` (``groups`` is None when the field is absent)."""
+    the scalar field ``group_by`` (``groups`` is None when the field is absent).
+
+    Every chunk is checked against its hash; :class:`CorruptChunkError` names all bad ones.
+    """
     dataset = open_dataset(path)
+    grouped = group_by is not None and dataset.schema.get(group_by, {}).get("shape") == []
+    problems, chunks = [], []
+    for index in range(len(dataset.chunk_counts)):
+        try:
+            chunks.append(dataset._load_chunk(index, (group_by,) if grouped else ()))
+        except CorruptChunkError as error:
+            problems.extend(error.chunks)
+    if problems:
+        raise CorruptChunkError(dataset.path, problems, len(dataset))
     groups = None
-    if group_by is not None and dataset.schema.get(group_by, {}).get("shape") == []:
-        values, counts = np.unique(dataset.read([group_by])[group_by], return_counts=True)
+    if grouped:
+        values, counts = np.unique(np.concatenate([c[group_by] for c in chunks] or [[]]), return_counts=True)
         groups = {str(v): int(c) for v, c in zip(values, counts, strict=True)}
     return {
         "path": str(dataset.path), "count": len(dataset), "chunks": len(dataset.chunk_counts),

@@ -2,32 +2,37 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import trimesh
+
+from tactojax.io._mesh_repair import InvalidMeshError, MeshRepairedWarning, repair_mesh
 
 MESH_UNITS_TO_MM = {"m": 1000.0, "cm": 10.0, "mm": 1.0}
 MAX_OBJECT_SIZE_MM = 600.0
 """Largest extent accepted for a graspable object; beyond this the units are probably wrong."""
 
 
-class InvalidMeshError(ValueError):
-    """A mesh file that cannot be used as a tactile object."""
-
-
-def load_mesh(path: str | Path, *, units: str = "m", max_opening_mm: float = 110.0) -> trimesh.Trimesh:
-    """Read a mesh file and return it in millimetres.
+def load_mesh(path: str | Path, *, units: str = "m", max_opening_mm: float = 110.0,
+              repair: bool = True) -> trimesh.Trimesh:
+    """Read a mesh file and return it in millimetres, repaired into a closed solid if needed.
 
     Args:
         path: an STL, OBJ or PLY file.
         units: the file's length unit, 'm', 'cm' or 'mm' (YCB scans are in metres).
         max_opening_mm: the gripper's largest opening; an object that no grasp can close on is
             rejected.
+        repair: make a mesh that is not watertight a closed solid (``tactojax.io.repair_mesh``:
+            pieces that enclose no volume dropped, holes closed with MeshFix). What was changed
+            is in ``mesh.metadata["repair"]`` (``MeshRepair.as_dict``) and a
+            :class:`MeshRepairedWarning` says it. ``False`` refuses such a mesh instead.
 
     Raises:
         FileNotFoundError: no such file.
-        InvalidMeshError: unreadable, empty, not watertight, or far larger than a gripper.
+        InvalidMeshError: unreadable, empty, not watertight and not repairable, or far larger
+            than a gripper.
     """
     path = Path(path)
     if units not in MESH_UNITS_TO_MM:
@@ -41,6 +46,10 @@ def load_mesh(path: str | Path, *, units: str = "m", max_opening_mm: float = 110
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InvalidMeshError(f"{path}: cannot read mesh (the file holds no triangles)")
     mesh.apply_scale(MESH_UNITS_TO_MM[units])
+    if repair and np.all(np.isfinite(mesh.vertices)) and not mesh.is_watertight:
+        mesh, report = repair_mesh(mesh, name=str(path))
+        mesh.metadata["repair"] = report.as_dict()
+        warnings.warn(f"{path}: {report.summary()}", MeshRepairedWarning, stacklevel=2)
     check_mesh(mesh, name=str(path), max_opening_mm=max_opening_mm, units=units)
     return mesh
 
@@ -52,7 +61,7 @@ def check_mesh(mesh: trimesh.Trimesh, *, name: str, max_opening_mm: float, units
     if not mesh.is_watertight:
         raise InvalidMeshError(
             f"{name}: mesh is not watertight (it has holes or open edges), so inside and outside "
-            "are undefined; repair it first (e.g. trimesh.repair.fill_holes or a remeshing tool)"
+            "are undefined; load it with repair=True (tactojax.io.load_mesh) or repair it first"
         )
     extents = np.sort(mesh.extents)
     if extents[-1] > MAX_OBJECT_SIZE_MM:

@@ -159,12 +159,14 @@ def _ycb(name: str, ycb_id: str, description: str, *, axial: bool = False) -> Ca
     def build() -> TactileObject:
         from tactojax.io import ycb_mesh_path, load_mesh
 
-        mesh = mount_mesh(load_mesh(ycb_mesh_path(ycb_id), units="m"))
+        loaded = load_mesh(ycb_mesh_path(ycb_id), units="m")
+        mesh = mount_mesh(loaded)
         bounds = np.asarray(mesh.bounds)
         centre = (0.0, *(float(c) for c in bounds.mean(axis=0)[1:]))
         symmetry = ObjectSymmetry(axis="x", centre=centre, exact=False) if axial else ObjectSymmetry()
         return TactileObject(name, MeshSolid(mesh), bounds, "household", description,
-                             attribution=YCB_ATTRIBUTION, parameters={"ycb_id": ycb_id}, symmetry=symmetry)
+                             attribution=YCB_ATTRIBUTION, parameters={"ycb_id": ycb_id}, symmetry=symmetry,
+                             mesh_repair=_repair_note(loaded))
     return build
 
 
@@ -201,12 +203,25 @@ def get_object(name: str) -> TactileObject:
 
 def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = None,
                      max_opening_mm: float = 110.0) -> TactileObject:
-    """A custom object from a mesh file (STL/OBJ/PLY), mounted in its canonical frame."""
+    """A custom object from a mesh file (STL/OBJ/PLY), mounted in its canonical frame.
+
+    A mesh that is not watertight is repaired on load (``tactojax.io.load_mesh``); the object's
+    ``mesh_repair`` says what changed.
+    """
     from tactojax.io import load_mesh
 
-    mesh = mount_mesh(load_mesh(path, units=units, max_opening_mm=max_opening_mm))
+    loaded = load_mesh(path, units=units, max_opening_mm=max_opening_mm)
+    mesh = mount_mesh(loaded)
     return TactileObject(name or Path(path).stem, MeshSolid(mesh), np.asarray(mesh.bounds), "custom",
-                         f"mesh {Path(path).name}")
+                         f"mesh {Path(path).name}", mesh_repair=_repair_note(loaded))
+
+
+def _repair_note(mesh) -> dict | None:
+    """The repair ``load_mesh`` made (with its one-line summary), or None."""
+    from tactojax.io import MeshRepair
+
+    report = mesh.metadata.get("repair")
+    return None if report is None else {**report, "summary": MeshRepair(**report).summary()}
 
 
 def resolve_object(name_or_path: str, *, units: str = "m") -> TactileObject:

@@ -28,6 +28,9 @@ class TactileObject:
     """True dimensions of parametric shapes (mm, radians), for shape recovery checks."""
     symmetry: ObjectSymmetry = NO_SYMMETRY
     """Rotations that map the object onto itself (symmetry-aware localization errors)."""
+    mesh_repair: dict | None = None
+    """What loading changed to make the scanned mesh a closed solid (``MeshRepair.as_dict()`` of
+    ``tactojax.io``, with its one-line ``"summary"``); None when the mesh was used as read."""
 
     @property
     def is_mesh(self) -> bool:

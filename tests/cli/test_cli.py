@@ -48,16 +48,16 @@ def _write_mesh(path, mesh):
 @pytest.mark.parametrize(
     ("mesh_kind", "units", "message"),
     [
-        ("open", "mm", "not watertight"),
+        ("soup", "mm", "cannot be repaired"),
         ("huge", "mm", "far larger than a gripper"),
         ("tiny", "mm", "mesh-units"),
         ("corrupt", "mm", "cannot read mesh"),
     ],
 )
 def test_bad_meshes_get_clear_errors(tmp_path, capsys, mesh_kind, units, message):
-    if mesh_kind == "open":
-        box = trimesh.creation.box((30.0, 20.0, 10.0))
-        path = _write_mesh(tmp_path / "open.stl", trimesh.Trimesh(box.vertices, box.faces[:-2]))
+    if mesh_kind == "soup":  # loose triangles: no repair can make a solid of them
+        corners = np.random.default_rng(0).random((60, 3)) * 30.0
+        path = _write_mesh(tmp_path / "soup.stl", trimesh.Trimesh(corners, np.arange(60).reshape(20, 3)))
     elif mesh_kind == "huge":
         path = _write_mesh(tmp_path / "huge.stl", trimesh.creation.box((2000.0, 20.0, 20.0)))
     elif mesh_kind == "tiny":
@@ -78,6 +78,17 @@ def test_mesh_by_path_is_simulated(tmp_path):
     assert main(["simulate", path, "--mesh-units", "m", "--out", str(out), *SMALL]) == 0
     ids = open_dataset(out).read(["object_id"])["object_id"]
     assert len(ids) > 0 and set(ids) == {"block"}
+
+
+def test_a_mesh_with_a_hole_is_repaired_and_says_so(tmp_path, capsys):
+    pytest.importorskip("pymeshfix")
+    box = trimesh.creation.box((60.0, 30.0, 20.0))
+    path = _write_mesh(tmp_path / "open.stl", trimesh.Trimesh(box.vertices, box.faces[:-2]))
+    assert main(["simulate", path, "--mesh-units", "mm", "--out", str(tmp_path / "out"), *SMALL]) == 0
+    captured = capsys.readouterr()
+    assert "open.stl: repaired into a closed solid: closed the holes of 1 pieces with MeshFix" in captured.out
+    assert "MeshRepairedWarning" not in captured.err
+    assert len(open_dataset(tmp_path / "out")) > 0
 
 
 def test_unknown_object_is_a_clear_error(capsys, tmp_path):
