@@ -44,3 +44,34 @@ class CompilationCounter(logging.Handler):
     def __exit__(self, *exc_info) -> None:
         logging.getLogger("jax").removeHandler(self)
         jax.config.update("jax_log_compiles", self._previous)
+
+
+FREE_OPS = frozenset({"parameter", "constant", "tuple", "get-tuple-element", "bitcast", "after-all", "partition-id",
+                      "replica-id"})
+"""Top-level HLO instructions that launch no kernel (views and bookkeeping)."""
+
+
+def kernel_count(compiled: jax.stages.Compiled) -> int:
+    """Kernels one call of a compiled program launches: top-level instructions of its optimized HLO.
+
+    XLA's CPU and GPU runtimes run each instruction of the entry computation (a fusion, a
+    library call such as a convolution, dot or FFT, a sort, a loop) as one kernel or thunk; a
+    ``while`` loop counts once here, though its body runs once per iteration. On a CPU the
+    fixed cost per kernel dominates programs of many small ones (jax#40150), so fewer is faster.
+
+        compiled = jax.jit(f).lower(*args).compile()
+        print(kernel_count(compiled))
+    """
+    count, in_entry = 0, False
+    for line in compiled.as_text().splitlines():
+        if line.startswith("ENTRY "):
+            in_entry = True
+            continue
+        if in_entry:
+            if line.startswith("}"):
+                break
+            if "=" not in line:
+                continue
+            opcode = line.split("=", 1)[1].strip().split("(", 1)[0].split()[-1]
+            count += opcode not in FREE_OPS
+    return count
