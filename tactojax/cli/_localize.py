@@ -45,7 +45,7 @@ def run(args) -> int:
     from tactojax.features import encode_image
     from tactojax.io import resolve_shape_model
     from tactojax.localize import MapLibrary, Query, identify, localize, parse_method
-    from tactojax.mapping import observed_contact
+    from tactojax.mapping import observed_contact, shows_contact
     from tactojax.shape import check_image, predict
 
     if len(args.paths) < 2:
@@ -61,8 +61,9 @@ def run(args) -> int:
     pixels = jnp.asarray(image, jnp.float32) / 255.0
     heightmap, mask = predict(model, pixels)
     mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
-    if not bool(mask.any()):
-        raise ValueError(f"{image_path} shows no contact (no pixel above the shape model's contact threshold)")
+    if not bool(shows_contact(pixels, model.background, mask)):
+        raise ValueError(f"{image_path} shows no contact (a dark frame, or no observed pixel above the shape "
+                         "model's contact threshold): no estimate")
     feature = encode_image(encoder, image)
     opening = jnp.float32(args.opening)
     chosen, similarities = identify(MapLibrary.from_maps(maps), feature, opening)

@@ -83,7 +83,8 @@ def run(args) -> int:
                                       latest_only=not every_frame), total=args.frames, unit="frame")
             for frame, estimate in bar:
                 statistics.add(frame, estimate)
-                bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}")
+                bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}" if estimate.contact
+                                    else "no contact")
                 records.append({"frame": frame.index, "timestamp_s": frame.timestamp_s, **estimate.as_dict()})
                 if view is not None:
                     from tactojax.viz import log_live_estimate
@@ -96,14 +97,16 @@ def run(args) -> int:
             view.flush()
             view.disconnect()
     summary = statistics.summary()
-    if records:
-        last = records[-1]
-        print(format_table(["last frame", "value"], [
-            ["object", last["object_id"]], ["confidence", last["confidence"]],
+    touched = [record for record in records if record["contact"]]
+    if touched:
+        last = touched[-1]
+        print(format_table(["last frame with contact", "value"], [
+            ["frame", last["frame"]], ["object", last["object_id"]], ["confidence", last["confidence"]],
             ["sensor pose in object (wxyz, xyz mm)", ", ".join(f"{v:.2f}" for v in last["T_object_sensor_wxyz_xyz"])],
         ]))
     print(format_table(["run", "value"], [
-        ["frames", summary["frames"]], ["sustained rate (Hz)", summary["rate_hz"]],
+        ["frames (without contact: no estimate)", f"{summary['frames']} ({len(records) - len(touched)})"],
+        ["sustained rate (Hz)", summary["rate_hz"]],
         ["latency median / p95 (ms)", f"{summary['latency_ms']['median']:.1f} / {summary['latency_ms']['p95']:.1f}"],
         ["skipped / dropped frames", f"{summary['skipped_frames']} / {summary['dropped_frames']}"],
         ["recompilations", summary["recompilations"]], ["compile at start-up (s)", localizer.compile_s],

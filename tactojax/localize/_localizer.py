@@ -33,7 +33,7 @@ from tactojax.localize._methods import POINTS_PER_QUERY, Method, localize_query,
 from tactojax.localize._pose import PoseEstimate
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.localize._search import SearchSettings
-from tactojax.mapping import TactileMap, observed_contact
+from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, predict
 
 CONFIDENT_RESIDUAL_MM = 0.5
@@ -42,18 +42,24 @@ CONFIDENT_RESIDUAL_MM = 0.5
 
 @dataclass(frozen=True)
 class LiveEstimate:
-    """What the localizer says about one touch (host-side numbers, ready to log or publish)."""
+    """What the localizer says about one touch (host-side numbers, ready to log or publish).
 
-    object_id: str
-    """The identified object (the map holding the most similar imprint)."""
-    T_object_sensor: jaxlie.SE3
-    """Sensor pose in that object's frame, mm."""
+    A frame without contact (nothing touching, a black frame) has no estimate: ``contact`` is
+    False, ``object_id`` and ``T_object_sensor`` are None and the numbers are 0 (``latency_s``
+    is still measured). Check ``estimate.contact`` (or ``estimate.T_object_sensor is None``)
+    before using the pose.
+    """
+
+    object_id: str | None
+    """The identified object (the map holding the most similar imprint); None without contact."""
+    T_object_sensor: jaxlie.SE3 | None
+    """Sensor pose in that object's frame, mm; None without contact."""
     confidence: float
     """A heuristic in [0, 1]: 0 without contact or without a retrieved imprint, else the
     fraction of the touch's points matched in the map times ``exp(-(residual /
     CONFIDENT_RESIDUAL_MM)^2)``. Not a calibrated probability."""
     contact: bool
-    """Whether the image shows any observed contact."""
+    """Whether the frame shows a touch (:func:`tactojax.mapping.shows_contact`)."""
     similarity: float
     """Cosine similarity of the closest imprint in the chosen map."""
     identity_margin: float
@@ -69,9 +75,9 @@ class LiveEstimate:
     """Wall time of the call, from image in to estimate out, s."""
 
     def as_dict(self) -> dict:
-        """JSON-ready fields (the pose as wxyz + xyz, mm)."""
-        return {"object_id": self.object_id,
-                "T_object_sensor_wxyz_xyz": np.asarray(self.T_object_sensor.wxyz_xyz).round(6).tolist(),
+        """JSON-ready fields (the pose as wxyz + xyz, mm; null without contact)."""
+        pose = None if self.T_object_sensor is None else np.asarray(self.T_object_sensor.wxyz_xyz).round(6).tolist()
+        return {"object_id": self.object_id, "T_object_sensor_wxyz_xyz": pose,
                 "confidence": self.confidence, "contact": self.contact, "similarity": self.similarity,
                 "identity_margin": self.identity_margin, "residual_mm": self.residual_mm,
                 "overlap": self.overlap, "converged": self.converged, "latency_s": self.latency_s}
@@ -94,7 +100,7 @@ def _touch_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, vie
             points_per_query=points_per_query, max_opening_difference_mm=max_opening_difference_mm)
 
     estimate = jax.lax.switch(chosen, [branch(i) for i in range(len(views))], views, query)
-    return chosen, best, jnp.any(mask), estimate
+    return chosen, best, shows_contact(pixels, model.background, mask), estimate
 
 
 class Localizer:
@@ -168,17 +174,21 @@ class Localizer:
 
     def _summarise(self, chosen: int, best: np.ndarray, contact: bool, estimate: PoseEstimate,
                    latency_s: float) -> LiveEstimate:
+        if not contact:
+            return LiveEstimate(object_id=None, T_object_sensor=None, confidence=0.0, contact=False, similarity=0.0,
+                                identity_margin=0.0, residual_mm=0.0, overlap=0.0, converged=False,
+                                latency_s=latency_s)
         others = np.delete(best, chosen)
         finite_others = others[np.isfinite(others)]
         similarity = float(best[chosen]) if np.isfinite(best[chosen]) else -1.0
         margin = 1.0 if finite_others.size == 0 else similarity - float(finite_others.max())
-        converged = bool(estimate.converged) and contact
+        converged = bool(estimate.converged)
         residual, overlap = float(estimate.score), float(estimate.overlap)
-        registered = contact and int(estimate.imprint_index) >= 0
+        registered = int(estimate.imprint_index) >= 0
         confidence = overlap * math.exp(-(residual / CONFIDENT_RESIDUAL_MM) ** 2) if registered else 0.0
         return LiveEstimate(
             object_id=self.object_ids[chosen],
             T_object_sensor=jaxlie.SE3(np.asarray(estimate.T_object_sensor.wxyz_xyz)),
-            confidence=float(np.clip(confidence, 0.0, 1.0)), contact=contact, similarity=similarity,
+            confidence=float(np.clip(confidence, 0.0, 1.0)), contact=True, similarity=similarity,
             identity_margin=float(margin), residual_mm=residual, overlap=overlap, converged=converged,
             latency_s=latency_s)

@@ -242,10 +242,16 @@ def localize(
 
     Returns:
         :class:`PoseEstimate`; never NaN (``converged`` False when it failed).
+
+    Raises:
+        ValueError: the query's mask is empty (no contact). Under ``jit``/``vmap`` this cannot be
+            checked; such a query then comes back at its start pose with ``converged`` False.
     """
     if parse_method(method).kind == "belief":
         raise ValueError("localize() runs one-shot methods; the belief keeps state across touches: use "
                          "update_belief with build_surface_views (tactojax.localize)")
+    if not isinstance(query.mask, jax.core.Tracer) and not np.any(np.asarray(query.mask)):
+        raise ValueError("the query shows no contact (its mask is empty): there is nothing to localize")
     view = as_localization_map(tactile_map)
     # NumPy scalars, not jnp.asarray: they travel with the call instead of costing a device
     # dispatch each (about 0.3 ms per touch on CPU), and are strongly typed (no recompilation).

@@ -55,7 +55,8 @@ def closest_imprints(
         imprint_valid: (K,) which map imprints may be retrieved.
         query_feature: (F,) the query's features.
         query_opening: the query's gripper opening, mm.
-        n: how many imprints to return (static; at most K).
+        n: how many imprints to return (static; a map with fewer than ``n`` imprints pads the
+            result with invalid entries).
         max_opening_difference_mm: opening filter, mm (``inf`` disables it).
         exclude: an imprint index never returned (leave-one-out), -1 for none.
 
@@ -83,5 +84,10 @@ def rank_imprints(
     eligible = (imprint_valid
                 & (jnp.abs(openings - query_opening) < max_opening_difference_mm)
                 & (index != exclude))
-    _, indices = jax.lax.top_k(jnp.where(eligible, similarities, -jnp.inf), n)
-    return indices, similarities[indices], eligible[indices]
+    _, indices = jax.lax.top_k(jnp.where(eligible, similarities, -jnp.inf), min(n, similarities.shape[0]))
+    valid = eligible[indices]
+    if indices.shape[0] < n:  # a small map: pad with invalid copies of the first entry
+        pad = n - indices.shape[0]
+        indices = jnp.concatenate([indices, jnp.zeros(pad, indices.dtype)])
+        valid = jnp.concatenate([valid, jnp.zeros(pad, bool)])
+    return indices, similarities[indices], valid

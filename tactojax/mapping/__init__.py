@@ -3,6 +3,7 @@
 from tactojax.mapping._build import DEFAULT_POINTS_PER_IMPRINT as DEFAULT_POINTS_PER_IMPRINT
 from tactojax.mapping._build import build_tactile_map as build_tactile_map
 from tactojax.mapping._build import observed_contact as observed_contact
+from tactojax.mapping._build import shows_contact as shows_contact
 from tactojax.mapping._build import sample_contact_points as sample_contact_points
 from tactojax.mapping._cloud import point_surface_distances as point_surface_distances
 from tactojax.mapping._cloud import stitched_point_cloud as stitched_point_cloud
@@ -37,6 +38,7 @@ __all__ = [
     "fit_tactile_map",
     "membrane_skirt",
     "observed_contact",
+    "shows_contact",
     "perturb_kinematics",
     "point_surface_distances",
     "sample_contact_points",

@@ -63,6 +63,24 @@ def observed_contact(
     return mask & near
 
 
+DARK_FRACTION = 0.5
+"""A frame darker on average than this fraction of the background frame is a camera fault
+(off, covered, a black frame), not a touch: contact changes the gel's colour locally and
+leaves its mean brightness near the background's."""
+
+
+def shows_contact(image: Float[Array, "H W 3"], background: Float[Array, "H W 3"],
+                  observed: Bool[Array, "H W"]) -> Bool[Array, ""]:
+    """Whether a frame shows a touch: some observed contact (:func:`observed_contact`) in a lit frame.
+
+    Args:
+        image, background: (H, W, 3) RGB in [0, 1].
+        observed: (H, W) observed contact mask of the frame.
+    """
+    lit = jnp.mean(image) > DARK_FRACTION * jnp.mean(background)
+    return jnp.any(observed) & lit
+
+
 def sample_contact_points(
     key: PRNGKeyArray,
     heightmap: Float[Array, "H W"],

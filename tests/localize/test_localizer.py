@@ -59,9 +59,11 @@ def test_live_localizer_never_recompiles_and_rejects_bad_frames(live, cylinder_m
         localizer(image, float("nan"))
 
 
-def test_a_frame_without_contact_has_zero_confidence(live, lookup_model):
+def test_a_frame_without_contact_has_no_estimate(live, lookup_model):
     localizer, _, _ = live
     background = np.round(np.asarray(lookup_model.background) * 255).astype(np.uint8)
-    estimate = localizer(background, 40.0)
-    assert not estimate.contact and estimate.confidence == 0.0 and not estimate.converged
-    assert np.all(np.isfinite(np.asarray(estimate.T_object_sensor.wxyz_xyz)))
+    for frame in (background, np.zeros_like(background)):  # nothing touching; a black frame
+        estimate = localizer(frame, 40.0)
+        assert not estimate.contact and estimate.T_object_sensor is None and estimate.object_id is None
+        assert estimate.confidence == 0.0 and not estimate.converged and estimate.latency_s > 0
+        assert estimate.as_dict()["T_object_sensor_wxyz_xyz"] is None

@@ -78,12 +78,16 @@ def test_icp_methods_localize_a_new_touch(view, new_touch, method):
 
 def test_no_candidate_or_no_contact_gives_a_finite_failed_estimate(view, new_touch):
     query, _ = new_touch
-    for broken in [query.replace(opening=jnp.float32(90.0)), query.replace(mask=jnp.zeros_like(query.mask))]:
-        for method in ["cti", "cti-icp-4", "cti-search-4"]:
-            estimate = _run(view, broken, method)
-            assert not bool(estimate.converged)
+    no_contact = query.replace(mask=jnp.zeros_like(query.mask))
+    for method in ["cti", "cti-icp-4", "cti-search-4"]:
+        with pytest.raises(ValueError, match="no contact"):
+            _run(view, no_contact, method)
+        # Under vmap (a batch of touches) it cannot raise: the estimate fails, finite.
+        for broken in [query.replace(opening=jnp.float32(90.0)), no_contact]:
+            estimate = jax.vmap(lambda q: _run(view, q, method))(jax.tree.map(lambda x: x[None], broken))
+            assert not bool(estimate.converged[0])
             assert np.all(np.isfinite(np.asarray(estimate.T_object_sensor.wxyz_xyz)))
-            assert np.isfinite(float(estimate.score))
+            assert np.isfinite(float(estimate.score[0]))
 
 
 def test_repeated_calls_do_not_recompile(view, bumps_map):

@@ -46,3 +46,10 @@ def test_opening_filter_and_exclude_leave_too_few():
 def test_cosine_similarity_of_zero_vectors_is_zero_not_nan():
     similarities = cosine_similarities(jnp.zeros((3, 4)), jnp.ones(4))
     assert np.all(np.asarray(similarities) == 0.0)
+
+
+def test_a_map_smaller_than_n_pads_with_invalid_entries():
+    features = np.eye(3, dtype=np.float32)
+    indices, _, ok = closest_imprints(features, np.full(3, 10.0, np.float32), np.ones(3, bool), features[2], 10.0, 5)
+    assert indices.shape == (5,) and np.asarray(ok).tolist() == [True] * 3 + [False] * 2
+    assert int(indices[0]) == 2 and sorted(np.asarray(indices)[:3].tolist()) == [0, 1, 2]
