@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 
 import jax
 
@@ -46,6 +47,9 @@ class CompilationCounter(logging.Handler):
         jax.config.update("jax_log_compiles", self._previous)
 
 
+_INSTRUCTION = re.compile(r"^\s*(?:ROOT\s+)?%\S+\s*=\s*.*?\s([a-z][\w\-]*)\(")
+"""One HLO instruction line, ``%name = <shape> opcode(operands)``: its opcode (shapes may be tuples)."""
+
 FREE_OPS = frozenset({"parameter", "constant", "tuple", "get-tuple-element", "bitcast", "after-all", "partition-id",
                       "replica-id"})
 """Top-level HLO instructions that launch no kernel (views and bookkeeping)."""
@@ -70,8 +74,6 @@ def kernel_count(compiled: jax.stages.Compiled) -> int:
         if in_entry:
             if line.startswith("}"):
                 break
-            if "=" not in line:
-                continue
-            opcode = line.split("=", 1)[1].strip().split("(", 1)[0].split()[-1]
-            count += opcode not in FREE_OPS
+            instruction = _INSTRUCTION.match(line)
+            count += bool(instruction) and instruction.group(1) not in FREE_OPS
     return count

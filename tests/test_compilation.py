@@ -14,3 +14,10 @@ def test_elementwise_work_fuses_into_one_kernel_and_library_calls_count_apart():
     three = jax.jit(lambda x: jnp.sort(jnp.sin(x) + 1.0) @ x).lower(x).compile()
     assert kernel_count(three) == 3
 
+
+
+def test_instructions_with_tuple_shapes_are_counted():
+    x = jnp.arange(8.0)
+    # A variadic reduction returns a tuple: (f32[], s32[]) reduce(...).
+    program = jax.jit(lambda x: jnp.argmax(x) + jnp.sum(jnp.cos(x)).astype(jnp.int32)).lower(x).compile()
+    assert 1 <= kernel_count(program) <= 3
