@@ -172,6 +172,10 @@ def read_grasps(path, *, object_id: str | None = None) -> dict:
     if object_id not in names:
         raise ValueError(f"object {object_id!r} is not in dataset {path} (have {names})")
     index = np.flatnonzero(objects == object_id)
+    if "finger" in dataset.fields and np.any(dataset.read(["finger"], index)["finger"] != 0):
+        raise ValueError(f"dataset {path} holds second-finger imprints (finger 1, a sensor on the opposite jaw, "
+                         "from --fingers 2): maps are built from the gripper's sensor jaw; read it as a test set "
+                         "(read_test_grasps, eval-localization --test) instead")
     fields = needed + (["T_world_object"] if "T_world_object" in dataset.fields else [])
     data = dataset.read(fields, index)
     sensor = dataset.metadata.get("sensor", {})

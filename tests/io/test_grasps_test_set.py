@@ -65,3 +65,10 @@ def test_read_test_grasps_refuses_other_and_incomplete_datasets(test_set, mappin
     with pytest.raises(ValueError, match="interrupted"):
         read_test_grasps(truncated)
     assert len(read_test_grasps(truncated, object_id="cuboid")["episode"]) == 8
+
+
+def test_a_two_finger_test_set_is_not_read_as_mapping_grasps(test_set):
+    from tactojax.io import read_grasps
+
+    with pytest.raises(ValueError, match="second-finger imprints"):
+        read_grasps(test_set, object_id="cuboid")
