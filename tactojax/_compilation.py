@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 
 import jax
 
@@ -51,6 +52,10 @@ FREE_OPS = frozenset({"parameter", "constant", "tuple", "get-tuple-element", "bi
 """Top-level HLO instructions that launch no kernel (views and bookkeeping)."""
 
 
+_OPCODE = re.compile(r"\s([a-z][\w.-]*)\(")
+"""The opcode of an HLO instruction: the first lower-case word followed by its operand list."""
+
+
 def kernel_count(compiled: jax.stages.Compiled) -> int:
     """Kernels one call of a compiled program launches: top-level instructions of its optimized HLO.
 
@@ -72,6 +77,7 @@ def kernel_count(compiled: jax.stages.Compiled) -> int:
                 break
             if "=" not in line:
                 continue
-            opcode = line.split("=", 1)[1].strip().split("(", 1)[0].split()[-1]
-            count += opcode not in FREE_OPS
+            # "%name = SHAPE opcode(operands), ...": SHAPE may be a tuple "(f32[2], s32[])".
+            match = _OPCODE.search(line.split("=", 1)[1])
+            count += match is not None and match.group(1) not in FREE_OPS
     return count
