@@ -1,10 +1,14 @@
 """Surface gradient -> heightmap: least-squares (Poisson) integration with a DCT solver.
 
 The standard GelSight reconstruction step (Johnson & Adelson 2009; Frankot & Chellappa 1988 in
-its Neumann-boundary cosine form). Pure JAX, differentiable. The 2-D cosine transforms are
-products with the (H, H) and (W, W) DCT matrices, ``O(HW (H + W))``: at sensor sizes four
-small matrix products beat ``jax.scipy.fft.dctn`` (complex FFTs and some 40 kernels) several
-times on a CPU (issue 17), and give the same transform to float32 round-off.
+its Neumann-boundary cosine form). Pure JAX, differentiable.
+
+The 2-D cosine transforms of images up to 320 px a side (GelSlim's full 240 x 320 and less) are
+products with the (H, H) and (W, W) DCT matrices, ``O(HW (H + W))``: 6 kernels where
+``jax.scipy.fft.dctn``/``idctn`` launch 41 (complex FFTs, reorderings), 1.6x faster at
+120 x 160 px, 1.1x at 240 x 320 on 2 CPU cores (issue 17). Larger images use the FFTs
+(``O(HW log HW)``), faster from about 300 x 400 px. Both give the transform to float32
+round-off.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import functools
 
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.fft import dctn, idctn
 from jaxtyping import Array, Float
 
 from tactojax.shape._quantile import quantile as exact_quantile
@@ -44,13 +49,24 @@ def integrate_gradient(
     eig_x = 4.0 * jnp.sin(jnp.pi * jnp.arange(width_px) / (2 * width_px)) ** 2
     eig_y = 4.0 * jnp.sin(jnp.pi * jnp.arange(height_px) / (2 * height_px)) ** 2
     eigenvalues = eig_y[:, None] + eig_x[None, :]
-    dct_rows = jnp.asarray(dct_matrix(height_px), rhs.dtype)
-    dct_cols = jnp.asarray(dct_matrix(width_px), rhs.dtype)
-    coefficients = dct_rows @ rhs @ dct_cols.T  # dctn(rhs, type=2, norm="ortho")
+    coefficients = _cosine_transform(rhs)
     # The constant mode (eigenvalue 0) is the free offset: set it to zero.
     safe = jnp.where(eigenvalues > 0, eigenvalues, 1.0)
     coefficients = jnp.where(eigenvalues > 0, coefficients / safe, 0.0)
-    return dct_rows.T @ coefficients @ dct_cols  # idctn(coefficients, type=2, norm="ortho")
+    return _cosine_transform(coefficients, inverse=True)
+
+
+MATRIX_DCT_MAX_PX = 320
+"""Largest image side whose cosine transforms are matrix products (beyond it, FFTs)."""
+
+
+def _cosine_transform(x: Float[Array, "H W"], *, inverse: bool = False) -> Float[Array, "H W"]:
+    """``dctn(x, type=2, norm="ortho")``, or ``idctn`` with ``inverse``."""
+    if max(x.shape) > MATRIX_DCT_MAX_PX:
+        return (idctn if inverse else dctn)(x, type=2, norm="ortho")
+    rows = jnp.asarray(dct_matrix(x.shape[0]), x.dtype)
+    cols = jnp.asarray(dct_matrix(x.shape[1]), x.dtype)
+    return rows.T @ x @ cols if inverse else rows @ x @ cols.T
 
 
 @functools.lru_cache(maxsize=16)
