@@ -1,8 +1,9 @@
 """Exact quantiles by selection: the values a sort would put at given ranks, without the sort.
 
 XLA's CPU sort calls a compiled comparator per comparison; sorting the 19,200 heights of a
-120 x 160 heightmap to read one quantile took 3-5 ms on 2 cores, a third of ``predict``
-(issue 17). Selection finds the same values with 32 counting passes (about 0.2 ms there).
+120 x 160 heightmap to read one quantile took about 3 ms on 2 busy cores, a third of
+``predict`` (issue 17). Selection finds the same values with 32 counting passes in about
+0.3 ms (``benchmarks/heightmap_speed.py``).
 """
 
 from __future__ import annotations
