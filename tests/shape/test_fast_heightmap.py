@@ -116,7 +116,7 @@ def small_fast_model():
     background = np.random.default_rng(0).uniform(0.3, 0.6, (20, 28, 3)).astype(np.float32)
     model = init_shape_model(jax.random.key(1), "fast", background, 0.4)
     # Random weights give a random slope field; scale the last layer so heights are ~0.1-1 mm.
-    params = jax.tree.map(lambda p: p, model.params)
+    params = jax.tree.map(lambda p: p, model.params)  # a copy, edited below
     params["slope_net"]["Dense_3"]["kernel"] = params["slope_net"]["Dense_3"]["kernel"] * 0.3
     return model.replace(params=params)
 
