@@ -17,7 +17,8 @@ the last 100 of every shape held out for testing, as in the paper):
    trained apart (``--paper-model``, e.g. from ``tactojax train DATA --preset paper --crop-px 40
    --pairs 2000``, which holds out the same last 100 touches of every shape).
 6. Speed: images/s of ``predict`` for every preset at the full sensor resolution, batch 1 and
-   batch 16, compile time apart, and multiply-adds per pixel.
+   batch 16, compile time apart, and multiply-adds per pixel. The ``fast`` model stage by
+   stage, against the formulation it replaced: ``benchmarks/heightmap_speed.py``.
 
 Run from the repository root (data is simulated into --work once and reused):
 

@@ -47,12 +47,13 @@ class CompilationCounter(logging.Handler):
         jax.config.update("jax_log_compiles", self._previous)
 
 
-_INSTRUCTION = re.compile(r"^\s*(?:ROOT\s+)?%\S+\s*=\s*.*?\s([a-z][\w\-]*)\(")
-"""One HLO instruction line, ``%name = <shape> opcode(operands)``: its opcode (shapes may be tuples)."""
-
 FREE_OPS = frozenset({"parameter", "constant", "tuple", "get-tuple-element", "bitcast", "after-all", "partition-id",
                       "replica-id"})
 """Top-level HLO instructions that launch no kernel (views and bookkeeping)."""
+
+
+_OPCODE = re.compile(r"\s([a-z][\w.-]*)\(")
+"""The opcode of an HLO instruction: the first lower-case word followed by its operand list."""
 
 
 def kernel_count(compiled: jax.stages.Compiled) -> int:
@@ -74,6 +75,9 @@ def kernel_count(compiled: jax.stages.Compiled) -> int:
         if in_entry:
             if line.startswith("}"):
                 break
-            instruction = _INSTRUCTION.match(line)
-            count += bool(instruction) and instruction.group(1) not in FREE_OPS
+            if "=" not in line:
+                continue
+            # "%name = SHAPE opcode(operands), ...": SHAPE may be a tuple "(f32[2], s32[])".
+            match = _OPCODE.search(line.split("=", 1)[1])
+            count += match is not None and match.group(1) not in FREE_OPS
     return count

@@ -63,3 +63,12 @@ def test_gradients():
     slope = jnp.asarray(np.random.default_rng(3).normal(size=(5, 6, 2)), jnp.float32)
     check_grads(jax.jit(lambda s: integrate_gradient(s, 0.5)), (slope,), order=1, modes=["rev"],
                 atol=1e-2, rtol=1e-2)
+
+
+def test_large_images_use_the_ffts_with_the_same_solution():
+    # A side above MATRIX_DCT_MAX_PX takes the FFT path; both paths solve the same least squares.
+    from tactojax.shape._poisson import MATRIX_DCT_MAX_PX
+
+    slope = np.random.default_rng(5).normal(size=(3, MATRIX_DCT_MAX_PX + 9, 2)).astype(np.float32)
+    expected = _reference(slope.astype(np.float64), 0.3)
+    np.testing.assert_allclose(_integrate(jnp.asarray(slope), 0.3), expected, atol=5e-4)
