@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from tactojax._compilation import kernel_count
 from tactojax.features import Encoder
 from tactojax.features._encoder import apply_encoder
 from tactojax.localize._icp import IcpSettings
@@ -152,6 +153,8 @@ class Localizer:
         self._compiled = jax.jit(program).lower(*self._operands, *example).compile()
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
+        self.kernels = kernel_count(self._compiled)
+        """Kernels one touch launches (:func:`tactojax._compilation.kernel_count`)."""
 
     def __call__(self, image: np.ndarray, opening_mm: float) -> LiveEstimate:
         """Identify and localize one touch.

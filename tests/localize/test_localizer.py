@@ -51,6 +51,7 @@ def test_live_localizer_never_recompiles_and_rejects_bad_frames(live, cylinder_m
         for opening in (30.0, 31.5, 60.0):
             localizer(image, opening)
     assert compiles.messages == []
+    assert localizer.kernels > 0  # one compiled program per touch, its kernels counted
     with pytest.raises(ValueError, match="uint8 RGB frames"):
         localizer(image[:-1], 30.0)
     with pytest.raises(ValueError, match="uint8 RGB frames"):
