@@ -11,7 +11,9 @@ def add_parser(commands) -> None:
         "localize-live", help="identify and localize the grasped object from a live tactile camera",
         description="Compile the whole touch (heightmap, features, identification, ICP) once, then run it "
                     "on every frame of a camera, video file or stream, with the gripper opening from a "
-                    "WSG-50 or a fixed value. Prints the estimates and the sustained rate and latency.")
+                    "WSG-50 or a fixed value. Once an object is localized its pose is tracked from frame to "
+                    "frame (registration from the previous pose; a full re-localization only when the fit "
+                    "degrades or contact is lost). Prints the estimates and the sustained rate and latency.")
     parser.add_argument("--camera", required=True,
                         help="camera device index, video file, or stream URL (frames must show the gel; "
                              "see --corners)")
@@ -26,6 +28,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--method", default="cti-icp-5", help="localization method (default cti-icp-5)")
     parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
     add_encoder_argument(parser)
+    parser.add_argument("--no-tracking", action="store_true",
+                        help="localize every frame from nothing (default: track the pose between frames)")
     parser.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--every-frame", action="store_true",
                         help="process every frame in order (default for video files); otherwise always the "
@@ -61,15 +65,16 @@ def run(args) -> int:
     from tactojax.cli._table import format_table, write_json
     from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
     from tactojax.io import resolve_shape_model
-    from tactojax.localize import Localizer
+    from tactojax.localize import Localizer, Tracker
 
     if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
         raise ValueError(f"--opening must be a positive number of mm, got {args.opening}")
     model = resolve_shape_model(args.model)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     print("compiling the touch program ...", flush=True)
-    localizer = Localizer(maps, model, encoder, method=args.method)
-    print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}")
+    localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, method=args.method)
+    print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
+          f"{'' if args.no_tracking else ' (tracking between frames)'}")
     view = _open_view(args, maps)
     source = camera_source(args.camera)
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
@@ -83,8 +88,8 @@ def run(args) -> int:
                                       latest_only=not every_frame), total=args.frames, unit="frame")
             for frame, estimate in bar:
                 statistics.add(frame, estimate)
-                bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}" if estimate.contact
-                                    else "no contact")
+                bar.set_postfix_str(f"{estimate.object_id} conf {estimate.confidence:.2f}"
+                                    f"{' tracked' if estimate.tracked else ''}" if estimate.contact else "no contact")
                 records.append({"frame": frame.index, "timestamp_s": frame.timestamp_s, **estimate.as_dict()})
                 if view is not None:
                     from tactojax.viz import log_live_estimate
@@ -110,10 +115,13 @@ def run(args) -> int:
         ["latency median / p95 (ms)", f"{summary['latency_ms']['median']:.1f} / {summary['latency_ms']['p95']:.1f}"],
         ["skipped / dropped frames", f"{summary['skipped_frames']} / {summary['dropped_frames']}"],
         ["recompilations", summary["recompilations"]], ["compile at start-up (s)", localizer.compile_s],
+        *([] if args.no_tracking else [["frames tracked / re-localized",
+                                        f"{localizer.tracked_frames} / {localizer.relocalizations}"]]),
     ]))
     if args.json:
         write_json(args.json, {"maps": list(localizer.object_ids), "method": localizer.method.name,
-                               "compile_s": localizer.compile_s, "summary": summary, "estimates": records})
+                               "tracking": not args.no_tracking, "compile_s": localizer.compile_s,
+                               "summary": summary, "estimates": records})
     return 0
 
 

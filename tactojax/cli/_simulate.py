@@ -14,14 +14,15 @@ model (``bundled:fast-gelslim-0.5``) reads gelslim images at this resolution."""
 
 def add_parser(commands) -> None:
     parser = commands.add_parser(
-        "simulate", help="simulate a mapping, calibration or new-grasps protocol on an object",
+        "simulate", help="simulate a mapping, calibration, new-grasps or slip protocol on an object",
         description="Simulate the paper's mapping (section V) or calibration (section IV) "
-        "protocol, or new grasps off the mapping grid (a localization test set), on a catalog "
+        "protocol, new grasps off the mapping grid (a localization test set) or slip sequences "
+        "(the object sliding and turning in a grasp, a tracking test set), on a catalog "
         "object or a mesh file, appending imprints to a dataset.")
     parser.add_argument("object", help="catalog name (see `tactojax info --objects`) or mesh path (STL/OBJ/PLY)")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
-    parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps"], default="mapping")
+    parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps", "slip"], default="mapping")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
     parser.add_argument("--scale", type=float, default=DEFAULT_SCALE,
                         help=f"sensor resolution factor in (0, 1] (default {DEFAULT_SCALE}: gelslim at 160 x 120 px, "
@@ -34,7 +35,13 @@ def add_parser(commands) -> None:
     parser.add_argument("--episodes", type=int, default=30, help="new grasps: episodes, each one object turn (default 30)")
     parser.add_argument("--grasps-per-episode", type=int, default=5, help="new grasps per episode (default 5)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=1, help="new grasps: sensors on 1 or both jaws")
-    parser.add_argument("--yaw-range-deg", type=float, default=20.0, help="new grasps: yaw within ±this, degrees")
+    parser.add_argument("--yaw-range-deg", type=float, default=20.0,
+                        help="new grasps and slip starts: yaw within ±this, degrees")
+    parser.add_argument("--sequences", type=int, default=10, help="slip: sequences, each from a new grasp (default 10)")
+    parser.add_argument("--frames", type=int, default=200, help="slip: frames per sequence (default 200)")
+    parser.add_argument("--max-step-mm", type=float, default=0.5, help="slip: largest slide per frame, mm (default 0.5)")
+    parser.add_argument("--max-step-deg", type=float, default=1.0,
+                        help="slip: largest turn per frame about the closing axis, degrees (default 1)")
     parser.add_argument("--depth-mm", type=float, default=1.0, help="mapping penetration depth, mm (default 1)")
     parser.add_argument("--depth-noise-mm", type=float, default=0.0, help="std of the penetration depth, mm")
     parser.add_argument("--seed", type=int, default=0)
@@ -47,7 +54,7 @@ def run(args) -> int:
     from tactojax.io import MeshRepairedWarning, simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
-    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol
+    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol
 
     with warnings.catch_warnings():  # said below, once, without a source line
         warnings.simplefilter("ignore", MeshRepairedWarning)
@@ -61,6 +68,10 @@ def run(args) -> int:
         protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps_per_episode,
                                   fingers=args.fingers, yaw_range_deg=args.yaw_range_deg,
                                   turns_deg=tuple(args.turns_deg))
+    elif args.protocol == "slip":
+        protocol = SlipProtocol(sequences=args.sequences, frames=args.frames, max_step_mm=args.max_step_mm,
+                                max_step_deg=args.max_step_deg, yaw_range_deg=args.yaw_range_deg,
+                                turns_deg=tuple(args.turns_deg))
     else:
         protocol = CalibrationProtocol(touches=args.touches)
     config = GraspConfig(depth_mm=args.depth_mm, depth_noise_mm=args.depth_noise_mm)

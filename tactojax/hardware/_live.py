@@ -1,6 +1,7 @@
 """The live localization loop: camera frames and gripper openings in, estimates out.
 
-:func:`live_estimates` runs a compiled :class:`~tactojax.localize.Localizer` on frames as they
+:func:`live_estimates` runs a compiled :class:`~tactojax.localize.Localizer` (or a
+:class:`~tactojax.localize.Tracker`, which follows the pose between frames) on frames as they
 come. With ``latest_only`` (live cameras), a background thread keeps reading the camera and the
 loop always takes the newest frame, so a slow step costs skipped frames instead of a growing
 backlog (latency stays one step); without it (video files, benchmarks) every frame is
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tactojax.hardware._camera import Camera, EndOfStream, Frame
-from tactojax.localize import LiveEstimate, Localizer
+from tactojax.localize import LiveEstimate, Localizer, Tracker
 
 
 class LatestFrame:
@@ -71,7 +72,7 @@ class LatestFrame:
 
 def live_estimates(
     camera: Camera,
-    localizer: Localizer,
+    localizer: Localizer | Tracker,
     opening_mm: float | Callable[[], float],
     *,
     max_frames: int | None = None,
@@ -81,7 +82,7 @@ def live_estimates(
 
     Args:
         camera: the tactile camera (rectified frames of the localizer's image size).
-        localizer: the compiled localizer.
+        localizer: the compiled localizer, or a tracker.
         opening_mm: the gripper opening, mm: a number, or a function read once per frame
             (e.g. ``gripper.opening_mm``).
         max_frames: stop after this many estimates (None: until the stream ends).

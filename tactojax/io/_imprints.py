@@ -9,7 +9,9 @@ dataset holds one sensor and one protocol, and several objects can be appended t
 
 New-grasps datasets (``GraspsProtocol``) also hold ``episode``, ``grasp`` and ``finger`` (int64):
 episode ids are unique within a dataset, each run continuing after the largest id already
-there (so an episode is also unique per ``(object_id, episode)``).
+there (so an episode is also unique per ``(object_id, episode)``). Slip datasets
+(``SlipProtocol``) hold ``sequence`` and ``frame`` (int64) the same way: sequence ids continue
+after the largest one already there, frames count 0 .. frames - 1 within a sequence.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from tactojax.io._dataset import DatasetWriter, open_dataset
 from tactojax.objects import TactileObject
 from tactojax.sensor import Imprint, SensorSpec
-from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, simulate_protocol
+from tactojax.simulate import (CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol,
+                               simulate_protocol)
 
 
 def sensor_metadata(spec: SensorSpec) -> dict:
@@ -48,7 +51,7 @@ def simulate_to_dataset(
     key: jax.Array,
     spec: SensorSpec,
     obj: TactileObject,
-    protocol: MappingProtocol | CalibrationProtocol | GraspsProtocol,
+    protocol: MappingProtocol | CalibrationProtocol | GraspsProtocol | SlipProtocol,
     *,
     config: GraspConfig = GraspConfig(),
     batch_size: int = 16,
@@ -58,7 +61,8 @@ def simulate_to_dataset(
     """Simulate ``protocol`` on ``obj`` and append its imprints to the dataset at ``path``.
 
     Crash-safe: an interrupted run leaves a readable dataset of the chunks already written.
-    New grasps: episodes are numbered on from the largest ``episode`` already in the dataset.
+    New grasps: episodes are numbered on from the largest ``episode`` already in the dataset;
+    slip sequences likewise (``sequence``).
 
     Returns:
         The number of imprints written (grasps that missed are skipped).
@@ -66,25 +70,26 @@ def simulate_to_dataset(
     metadata = dataset_metadata(spec, protocol, config)
     written = 0
     with DatasetWriter(path, metadata=metadata, chunk_size=chunk_size) as writer:
-        first_episode = _next_episode(path) if isinstance(protocol, GraspsProtocol) else 0
+        numbered = {GraspsProtocol: "episode", SlipProtocol: "sequence"}.get(type(protocol))
+        first = _next_id(path, numbered) if numbered else 0
         for records in simulate_protocol(key, spec, obj, protocol, config=config,
                                          batch_size=batch_size, progress=progress):
-            if first_episode:
-                records = {**records, "episode": records["episode"] + first_episode}
+            if first:
+                records = {**records, numbered: records[numbered] + first}
             for i in range(len(records["image"])):
                 writer.append({name: values[i] for name, values in records.items()})
                 written += 1
     return written
 
 
-def _next_episode(path: str | Path) -> int:
-    """One past the largest episode id of the dataset at ``path`` (0 if none yet)."""
+def _next_id(path: str | Path, field: str) -> int:
+    """One past the largest ``field`` id (episode, sequence) of the dataset at ``path`` (0 if none yet)."""
     if not (Path(path) / "manifest.json").exists():
         return 0
     dataset = open_dataset(path)
-    if "episode" not in dataset.fields or len(dataset) == 0:
+    if field not in dataset.fields or len(dataset) == 0:
         return 0
-    return int(dataset.read(["episode"])["episode"].max()) + 1
+    return int(dataset.read([field])[field].max()) + 1
 
 
 def load_imprints(path: str | Path, indices=None) -> tuple[Imprint, np.ndarray]:

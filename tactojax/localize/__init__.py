@@ -43,6 +43,9 @@ from tactojax.localize._identify import evaluate_identification as evaluate_iden
 from tactojax.localize._identify import identify as identify
 from tactojax.localize._localizer import LiveEstimate as LiveEstimate
 from tactojax.localize._localizer import Localizer as Localizer
+from tactojax.localize._tracker import Tracker as Tracker
+from tactojax.localize._tracker import TrackingSettings as TrackingSettings
+from tactojax.localize._tracker import track_pose as track_pose
 from tactojax.localize._likelihood import LikelihoodSettings as LikelihoodSettings
 from tactojax.localize._likelihood import TouchEvidence as TouchEvidence
 from tactojax.localize._likelihood import log_likelihood as log_likelihood
@@ -114,6 +117,9 @@ __all__ = [
     "LocalizationErrors",
     "LocalizationMap",
     "Localizer",
+    "Tracker",
+    "TrackingSettings",
+    "track_pose",
     "MapLibrary",
     "Method",
     "PoseEstimate",

@@ -74,6 +74,9 @@ class LiveEstimate:
     when the iterations ran out first)."""
     latency_s: float
     """Wall time of the call, from image in to estimate out, s."""
+    tracked: bool = False
+    """Whether a :class:`~tactojax.localize.Tracker` followed the pose from the previous frame
+    (False: localized from nothing, as :class:`Localizer` always does)."""
 
     def as_dict(self) -> dict:
         """JSON-ready fields (the pose as wxyz + xyz, mm; null without contact)."""
@@ -81,16 +84,27 @@ class LiveEstimate:
         return {"object_id": self.object_id, "T_object_sensor_wxyz_xyz": pose,
                 "confidence": self.confidence, "contact": self.contact, "similarity": self.similarity,
                 "identity_margin": self.identity_margin, "residual_mm": self.residual_mm,
-                "overlap": self.overlap, "converged": self.converged, "latency_s": self.latency_s}
+                "overlap": self.overlap, "converged": self.converged, "latency_s": self.latency_s,
+                "tracked": self.tracked}
 
 
-def _touch_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...],
-                   image: jax.Array, opening: jax.Array, *, method: Method, settings: IcpSettings,
-                   search: SearchSettings, points_per_query: int, max_opening_difference_mm: float):
-    """One touch, image (H, W, 3) uint8 and opening (mm) in; identity, pose and fit out."""
+def observe(model: ShapeModel, image: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """A frame's pixels (H, W, 3) in [0, 1], heightmap (H, W) mm, contact mask (H, W) and
+    whether it shows a touch at all (:func:`tactojax.mapping.shows_contact`)."""
     pixels = image.astype(jnp.float32) / 255.0
     heightmap, mask = predict(model, pixels)
     mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
+    return pixels, heightmap, mask, shows_contact(pixels, model.background, mask)
+
+
+def relocalize(encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...], pixels: jax.Array,
+               heightmap: jax.Array, mask: jax.Array, opening: jax.Array, *, method: Method, settings: IcpSettings,
+               search: SearchSettings, points_per_query: int, max_opening_difference_mm: float):
+    """Identify a touch among the maps and localize it in the chosen one, from nothing.
+
+    Returns:
+        the chosen map's index, (M,) the best similarity in every map, and the estimate.
+    """
     feature = apply_encoder(encoder, pixels[None])[0]
     chosen, best = identify(library, feature, opening, max_opening_difference_mm=max_opening_difference_mm)
     query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
@@ -101,7 +115,64 @@ def _touch_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, vie
             points_per_query=points_per_query, max_opening_difference_mm=max_opening_difference_mm)
 
     estimate = jax.lax.switch(chosen, [branch(i) for i in range(len(views))], views, query)
-    return chosen, best, shows_contact(pixels, model.background, mask), estimate
+    return chosen, best, estimate
+
+
+def _touch_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...],
+                   image: jax.Array, opening: jax.Array, **options):
+    """One touch, image (H, W, 3) uint8 and opening (mm) in; identity, pose and fit out."""
+    pixels, heightmap, mask, contact = observe(model, image)
+    chosen, best, estimate = relocalize(encoder, library, views, pixels, heightmap, mask, opening, **options)
+    return chosen, best, contact, estimate
+
+
+def check_maps(maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder) -> list[TactileMap]:
+    """The maps as a list, after a ValueError naming the first that the model or encoder cannot serve."""
+    maps = list(maps)
+    if not maps:
+        raise ValueError("the localizer needs at least one map")
+    for tactile_map in maps:
+        if tactile_map.features.shape[1] != encoder.feature_dim:
+            raise ValueError(f"map {tactile_map.object_id!r} stores {tactile_map.features.shape[1]}-long "
+                             f"features but the encoder gives {encoder.feature_dim}: build the map's "
+                             "features with this encoder (TactileMap.with_features)")
+        if not math.isclose(float(tactile_map.mm_per_px), float(model.mm_per_px), rel_tol=1e-6):
+            raise ValueError(f"map {tactile_map.object_id!r} has {tactile_map.mm_per_px} mm/px but the "
+                             f"shape model {model.mm_per_px} mm/px: they are of different sensors")
+    return maps
+
+
+def check_live_method(method: str | Method) -> Method:
+    """The parsed method, after a ValueError if a live loop cannot run it."""
+    method = parse_method(method)
+    if method.kind == "random":
+        raise ValueError("a live localizer needs a retrieval method (cti, cti-icp-N, ...), not random")
+    if method.kind == "belief":
+        raise ValueError("the live localizer does not run the belief yet: use tactojax.localize.update_belief "
+                         "(see the README, 'The pose belief')")
+    return method
+
+
+def check_frame(image: np.ndarray, opening_mm: float, image_shape: tuple[int, ...]) -> np.ndarray:
+    """The frame as an array, after a ValueError naming what is wrong with it or the opening."""
+    image = np.asarray(image)
+    if image.shape != image_shape or image.dtype != np.uint8:
+        raise ValueError(f"the localizer takes {image_shape} uint8 RGB frames, got {image.shape} {image.dtype}")
+    if not np.isfinite(opening_mm) or opening_mm <= 0:
+        raise ValueError(f"the gripper opening must be a positive number of mm, got {opening_mm}")
+    return image
+
+
+def no_contact(latency_s: float) -> LiveEstimate:
+    """The estimate of a frame without contact: none."""
+    return LiveEstimate(object_id=None, T_object_sensor=None, confidence=0.0, contact=False, similarity=0.0,
+                        identity_margin=0.0, residual_mm=0.0, overlap=0.0, converged=False, latency_s=latency_s)
+
+
+def fit_confidence(residual_mm, overlap, registered):
+    """:attr:`LiveEstimate.confidence` of a fit (numbers or arrays alike)."""
+    confidence = overlap * np.exp(-(np.asarray(residual_mm) / CONFIDENT_RESIDUAL_MM) ** 2)
+    return np.clip(np.where(registered, confidence, 0.0), 0.0, 1.0)
 
 
 class Localizer:
@@ -124,23 +195,8 @@ class Localizer:
                  method: str | Method = "cti-icp-5", settings: IcpSettings = IcpSettings(),
                  search: SearchSettings = SearchSettings(), points_per_query: int = POINTS_PER_QUERY,
                  max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM):
-        maps = list(maps)
-        if not maps:
-            raise ValueError("the localizer needs at least one map")
-        for tactile_map in maps:
-            if tactile_map.features.shape[1] != encoder.feature_dim:
-                raise ValueError(f"map {tactile_map.object_id!r} stores {tactile_map.features.shape[1]}-long "
-                                 f"features but the encoder gives {encoder.feature_dim}: build the map's "
-                                 "features with this encoder (TactileMap.with_features)")
-            if not math.isclose(float(tactile_map.mm_per_px), float(model.mm_per_px), rel_tol=1e-6):
-                raise ValueError(f"map {tactile_map.object_id!r} has {tactile_map.mm_per_px} mm/px but the "
-                                 f"shape model {model.mm_per_px} mm/px: they are of different sensors")
-        self.method = parse_method(method)
-        if self.method.kind == "random":
-            raise ValueError("a live localizer needs a retrieval method (cti, cti-icp-N, ...), not random")
-        if self.method.kind == "belief":
-            raise ValueError("the live localizer does not run the belief yet: use tactojax.localize.update_belief "
-                             "(see the README, 'The pose belief')")
+        maps = check_maps(maps, model, encoder)
+        self.method = check_live_method(method)
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
         self._operands = (model, encoder, MapLibrary.from_maps(maps),
@@ -164,12 +220,7 @@ class Localizer:
             opening_mm: gripper opening at the frame, mm.
         """
         start = time.perf_counter()
-        image = np.asarray(image)
-        if image.shape != self.image_shape or image.dtype != np.uint8:
-            raise ValueError(f"the localizer takes {self.image_shape} uint8 RGB frames, got {image.shape} "
-                             f"{image.dtype}")
-        if not np.isfinite(opening_mm) or opening_mm <= 0:
-            raise ValueError(f"the gripper opening must be a positive number of mm, got {opening_mm}")
+        image = check_frame(image, opening_mm, self.image_shape)
         chosen, best, contact, estimate = jax.device_get(
             self._compiled(*self._operands, image, np.float32(opening_mm)))
         return self._summarise(int(chosen), np.asarray(best), bool(contact), estimate,
@@ -178,17 +229,14 @@ class Localizer:
     def _summarise(self, chosen: int, best: np.ndarray, contact: bool, estimate: PoseEstimate,
                    latency_s: float) -> LiveEstimate:
         if not contact:
-            return LiveEstimate(object_id=None, T_object_sensor=None, confidence=0.0, contact=False, similarity=0.0,
-                                identity_margin=0.0, residual_mm=0.0, overlap=0.0, converged=False,
-                                latency_s=latency_s)
+            return no_contact(latency_s)
         others = np.delete(best, chosen)
         finite_others = others[np.isfinite(others)]
         similarity = float(best[chosen]) if np.isfinite(best[chosen]) else -1.0
         margin = 1.0 if finite_others.size == 0 else similarity - float(finite_others.max())
         converged = bool(estimate.converged)
         residual, overlap = float(estimate.score), float(estimate.overlap)
-        registered = int(estimate.imprint_index) >= 0
-        confidence = overlap * math.exp(-(residual / CONFIDENT_RESIDUAL_MM) ** 2) if registered else 0.0
+        confidence = fit_confidence(residual, overlap, int(estimate.imprint_index) >= 0)
         return LiveEstimate(
             object_id=self.object_ids[chosen],
             T_object_sensor=jaxlie.SE3(np.asarray(estimate.T_object_sensor.wxyz_xyz)),

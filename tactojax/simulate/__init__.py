@@ -16,6 +16,10 @@ from tactojax.simulate._protocols import mapping_plan as mapping_plan
 from tactojax.simulate._run import plan_protocol as plan_protocol
 from tactojax.simulate._run import protocol_fields as protocol_fields
 from tactojax.simulate._run import simulate_protocol as simulate_protocol
+from tactojax.simulate._slip import SlipProtocol as SlipProtocol
+from tactojax.simulate._slip import SlipWalk as SlipWalk
+from tactojax.simulate._slip import slip_offsets as slip_offsets
+from tactojax.simulate._slip import slipped_grippers as slipped_grippers
 from tactojax.simulate._touch import cast_rays as cast_rays
 from tactojax.simulate._touch import pad_rays as pad_rays
 from tactojax.simulate._touch import touch as touch
@@ -23,6 +27,6 @@ from tactojax.simulate._touch import touch as touch
 __all__ = [
     "CalibrationProtocol", "GraspCandidates", "GraspConfig", "GraspPlan", "GraspResult", "GraspsProtocol",
     "MappingProtocol", "TouchPlan", "calibration_plan", "cast_rays", "grasps_plan", "mapping_plan", "pad_rays",
-    "plan_protocol", "protocol_fields", "simulate_grasps", "simulate_protocol", "simulate_two_sensor_grasps",
-    "touch",
+    "plan_protocol", "protocol_fields", "SlipProtocol", "simulate_grasps", "simulate_protocol", "simulate_two_sensor_grasps",
+    "SlipWalk", "slip_offsets", "slipped_grippers", "touch",
 ]

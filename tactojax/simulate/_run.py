@@ -20,10 +20,11 @@ from tactojax.simulate._protocols import (
     CalibrationProtocol, GraspCandidates, GraspPlan, GraspsProtocol, MappingProtocol, TouchPlan,
     calibration_plan, check_grasps_protocol, grasp_candidates, grasps_plan, mapping_plan,
 )
+from tactojax.simulate._slip import SlipProtocol, SlipWalk, check_slip_protocol, slipped_grippers
 from tactojax.simulate._touch import touch
 
 Records = dict[str, np.ndarray]
-Protocol = MappingProtocol | CalibrationProtocol | GraspsProtocol
+Protocol = MappingProtocol | CalibrationProtocol | GraspsProtocol | SlipProtocol
 
 MAX_MISSES_IN_A_ROW = 50
 """New-grasps protocol: an episode gives up after this many skipped candidates in a row."""
@@ -38,6 +39,9 @@ def plan_protocol(
         return mapping_plan(obj, protocol)
     if isinstance(protocol, GraspsProtocol):
         return grasps_plan(key, obj, protocol)
+    if isinstance(protocol, SlipProtocol):
+        raise ValueError("a slip protocol has no plan ahead of the simulation: its start grasps are the "
+                         "first that keep touching (use simulate_protocol)")
     return calibration_plan(key, obj, spec, protocol)
 
 
@@ -66,9 +70,16 @@ def simulate_protocol(
     ``tactojax.io.simulate_to_dataset`` for datasets), ``grasp`` 0 .. grasps_per_episode - 1,
     ``finger`` 0 (sensor jaw) or 1 (opposite jaw, ``fingers=2``). Results are deterministic
     for a key and batch size.
+
+    Slip sequences (:class:`~tactojax.simulate.SlipProtocol`): ``sequences`` runs of ``frames``
+    consecutive frames each, ordered by ``sequence`` and ``frame``; a start grasp whose slip
+    loses the object in any frame is replaced by the sequence's next candidate.
     """
     if isinstance(protocol, GraspsProtocol):
         yield from _simulate_new_grasps(key, spec, obj, protocol, config, batch_size, progress)
+        return
+    if isinstance(protocol, SlipProtocol):
+        yield from _simulate_slip(key, spec, obj, protocol, config, batch_size, progress)
         return
     plan_key, sim_key = jax.random.split(key)
     plan = plan_protocol(plan_key, spec, obj, protocol)
@@ -95,6 +106,8 @@ def protocol_fields(protocol: Protocol) -> tuple[str, ...]:
         return ("turn_rad", "yaw_rad", "grid_u_mm", "grid_v_mm")
     if isinstance(protocol, GraspsProtocol):
         return ("episode", "grasp", "finger", "turn_rad", "yaw_rad")
+    if isinstance(protocol, SlipProtocol):
+        return ("sequence", "frame", "turn_rad", "yaw_rad")
     return ("rotation_rad", "offset_x_mm", "offset_y_mm")
 
 
@@ -188,6 +201,90 @@ def _simulate_new_grasps(key, spec, obj, protocol: GraspsProtocol, config, batch
                                      finger=np.arange(fingers, dtype=np.int64))
         yield {name: np.concatenate([r[name] for e in episodes for r in kept[e]]) for name in kept[first][0]}
     bar.close()
+
+
+def _simulate_slip(key, spec, obj, protocol: SlipProtocol, config, batch_size, progress) -> Iterator[Records]:
+    """Slip protocol: per sequence, the first start grasp (a new-grasps candidate) that touches;
+    then batches of proposed frames, keeping each batch up to the first frame that lost the
+    object and reversing the slip there (:class:`SlipWalk`). A start whose slip is stuck (every
+    direction loses the object at once) is replaced by the sequence's next valid candidate."""
+    check_slip_protocol(protocol)
+    plan_key, slip_key, sim_key = jax.random.split(key, 3)
+    starts = GraspsProtocol(episodes=protocol.sequences, grasps_per_episode=1, yaw_range_deg=protocol.yaw_range_deg,
+                            turns_deg=protocol.turns_deg)
+    bar = tqdm(total=protocol.sequences * protocol.frames, desc=f"{obj.name} ({protocol.name})", unit="frame",
+               disable=not progress)
+    calls = 0
+
+    def frames_at(T_world_object, T_world_gripper):
+        nonlocal calls
+        calls += 1
+        return simulate_grasps(jax.random.fold_in(sim_key, calls), spec, obj, T_world_object, T_world_gripper, config)
+
+    def pick(tree, index):
+        return jax.tree.map(lambda x: x[index], tree)
+
+    for sequence in range(protocol.sequences):
+        taken, attempt, candidate = None, 0, 0
+        while taken is None:
+            if attempt >= MAX_MISSES_IN_A_ROW:
+                bar.close()
+                raise ValueError(f"{obj.name}: {attempt} start grasps in a row missed the object or could not slip "
+                                 f"without losing it (sequence {sequence}); lower max_offset_mm or max_step_mm")
+            batch = grasp_candidates(plan_key, obj, starts, np.full(batch_size, sequence),
+                                     candidate + np.arange(batch_size))
+            candidate += batch_size
+            T_world_object = pick(batch.T_world_object, 0)
+            valid = np.asarray(frames_at(T_world_object, batch.T_world_gripper).valid)
+            for index in np.flatnonzero(valid):
+                attempt += 1
+                start = pick(batch, index)
+                taken = _slip_sequence(SlipWalk(jax.random.fold_in(jax.random.fold_in(slip_key, sequence), attempt),
+                                                protocol), start, frames_at, batch_size, obj)
+                if taken is not None:
+                    break
+            attempt += int(not valid.any()) * batch_size
+        frames = protocol.frames
+        records = taken
+        records.update(sequence=np.full(frames, sequence, np.int64), frame=np.arange(frames, dtype=np.int64),
+                       turn_rad=np.full(frames, float(start.turn_rad), np.float32),
+                       yaw_rad=np.full(frames, float(start.yaw_rad), np.float32))
+        bar.update(frames)
+        yield records
+    bar.close()
+
+
+MAX_BOUNCES_IN_A_ROW = 8
+"""Slip protocol: a start is abandoned when this many proposals in a row lose the object at once."""
+
+
+def _slip_sequence(walk: SlipWalk, start: GraspCandidates, frames_at, batch_size: int, obj: TactileObject
+                   ) -> Records | None:
+    """The records of one slip sequence from ``start``, or None if its slip gets stuck."""
+    frames = walk.protocol.frames
+    T_world_object = start.T_world_object
+    first = frames_at(T_world_object, jax.tree.map(lambda x: jnp.broadcast_to(x, (batch_size, *x.shape)),
+                                                   start.T_world_gripper))
+    parts = [(first, np.array([0]))]
+    count, stuck = 1, 0
+    while count < frames:
+        proposed = walk.propose(batch_size)
+        result = frames_at(T_world_object, slipped_grippers(start.T_world_gripper, proposed))
+        valid = np.asarray(result.valid)
+        keep = min(int(np.argmin(valid)) if not valid.all() else batch_size, frames - count)
+        walk.take(keep, bounce=keep < batch_size and not valid[:keep + 1].all())
+        stuck = stuck + 1 if keep == 0 else 0
+        if stuck >= MAX_BOUNCES_IN_A_ROW:
+            return None
+        if keep:
+            parts.append((result, np.arange(keep)))
+            count += keep
+    records = [_common(obj, r.imprint.image[i], r.imprint.heightmap[i], r.imprint.mask[i],
+                       jax.tree.map(lambda x: x[i], r.imprint.T_world_sensor),
+                       jax.tree.map(lambda x: x[i], r.imprint.T_world_gripper),
+                       jaxlie.SE3(jnp.broadcast_to(T_world_object.wxyz_xyz, (len(i), 7))),
+                       r.imprint.opening[i], r.depth_mm[i]) for r, i in parts]
+    return {name: np.concatenate([r[name] for r in records]) for name in records[0]}
 
 
 def _candidate_round(lacking: dict[int, int], next_candidate: dict[int, int], batch_size: int

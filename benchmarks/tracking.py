@@ -1,0 +1,198 @@
+"""Tracking between touches on simulated slip sequences, against re-localizing every frame.
+
+An object slides and turns in the grasp (``tactojax simulate --protocol slip``: new grasps, then
+up to 0.5 mm and 1 degree of slip per frame, 200 frames per sequence). Every frame goes through
+
+- **tracking** (:class:`tactojax.localize.Tracker`, what ``localize-live`` runs): the first frame
+  localized from nothing, then followed, re-localized only when the fit degrades;
+- **tracking from the true start**: the same, with the track started at the true pose of frame
+  0 (``Tracker.start``), which separates how well it follows from how well it starts;
+- **re-localizing every frame** (:class:`tactojax.localize.Localizer`).
+
+Reported per mode: position error of the sensor pose (mm) over all frames, at the first and
+the last frame; the drift at the end (error of the estimated motion since frame 0 against the
+true motion); re-localizations per frame; latency (median, and tracked frames alone) and the
+sustained rate. A figure shows the median error against the frame index.
+
+    python benchmarks/tracking.py --json tracking.json --figure tracking.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import zlib
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from tqdm.auto import tqdm
+
+from tactojax._compilation import CompilationCounter
+from tactojax.features import encode_images
+from tactojax.geometry import sensor_pose
+from tactojax.io import open_dataset, read_grasps, resolve_encoder, resolve_shape_model, simulate_to_dataset
+from tactojax.localize import Localizer, Tracker
+from tactojax.mapping import build_tactile_map
+from tactojax.objects import get_object
+from tactojax.sensor import gelslim
+from tactojax.simulate import MappingProtocol, SlipProtocol
+
+try:  # run as ``python benchmarks/tracking.py`` or as a module
+    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks.live import simulated
+except ImportError:
+    from _common import format_table, machine_info, write_json
+    from live import simulated
+
+MODES = ("tracking", "tracking from the true start", "re-localizing every frame")
+
+
+def slip_sequences(work: Path, name: str, protocol: SlipProtocol, seed: int) -> dict[str, np.ndarray]:
+    """The slip test set (simulated once, then read from ``work``), with true object-frame poses."""
+    path = work / f"{name}-slip-s{protocol.sequences}-f{protocol.frames}-seed{seed}"
+    if not (path / "manifest.json").exists():
+        simulate_to_dataset(path, jax.random.key(seed), gelslim(scale=0.5), get_object(name), protocol)
+    data = open_dataset(path).read(["image", "opening_mm", "T_world_gripper", "T_world_object", "sequence", "frame"])
+    T_world_sensor = sensor_pose(jaxlie.SE3(jnp.asarray(data["T_world_gripper"])), jnp.asarray(data["opening_mm"]))
+    T_object_sensor = jaxlie.SE3(jnp.asarray(data["T_world_object"])).inverse() @ T_world_sensor
+    data["T_object_sensor"] = np.asarray(T_object_sensor.wxyz_xyz)
+    return data
+
+
+def run_sequence(estimator, images, openings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(F, 7) estimated poses (NaN without one), (F,) latency s, (F,) tracked, (F,) relocalized."""
+    poses = np.full((len(images), 7), np.nan)
+    latency, tracked, relocalized = np.zeros(len(images)), np.zeros(len(images), bool), np.zeros(len(images), bool)
+    for k, (image, opening) in enumerate(zip(images, openings)):
+        before = getattr(estimator, "relocalizations", k)
+        estimate = estimator(image, float(opening))
+        latency[k], tracked[k] = estimate.latency_s, estimate.tracked
+        relocalized[k] = getattr(estimator, "relocalizations", k + 1) > before
+        if estimate.T_object_sensor is not None:
+            poses[k] = np.asarray(estimate.T_object_sensor.wxyz_xyz)
+    return poses, latency, tracked, relocalized
+
+
+def errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, float]:
+    """(F,) position error, mm (NaN without an estimate), and the drift at the last frame: the
+    error of the estimated motion since frame 0 against the true one, mm."""
+    position = np.linalg.norm(poses[:, 4:] - truth[:, 4:], axis=1)
+    drift = np.linalg.norm((poses[-1, 4:] - poses[0, 4:]) - (truth[-1, 4:] - truth[0, 4:]))
+    return position, float(drift)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--object", default="scissors")
+    parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache (shared with live.py)")
+    parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
+    parser.add_argument("--encoder", default=None, help="feature encoder (default: the CLI's)")
+    parser.add_argument("--method", default="cti-icp-5", help="localization method when (re-)localizing")
+    parser.add_argument("--sequences", type=int, default=10)
+    parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=2026, help="slip test set seed (not tuned on)")
+    parser.add_argument("--json", metavar="PATH")
+    parser.add_argument("--figure", metavar="PATH", help="median error against the frame index (.png)")
+    args = parser.parse_args()
+    from tactojax.cli._maps import DEFAULT_ENCODER
+
+    encoder_name = args.encoder or DEFAULT_ENCODER
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(encoder_name)
+    print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}; {len(os.sched_getaffinity(0))} usable cores; "
+          f"encoder {encoder_name}")
+    grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
+    tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
+                                    args.object, T_world_object=grasps["T_world_object"])
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    protocol = SlipProtocol(sequences=args.sequences, frames=args.frames)
+    data = slip_sequences(work, args.object, protocol, args.seed)
+    print(f"map: {len(tactile_map)} imprints; {args.sequences} slip sequences of {args.frames} frames")
+
+    tracker = Tracker([tactile_map], model, encoder, method=args.method)
+    localizer = Localizer([tactile_map], model, encoder, method=args.method)
+    print(f"compiled: tracker {tracker.compile_s:.1f} s ({tracker.kernels} kernels, both branches), "
+          f"localizer {localizer.compile_s:.1f} s ({localizer.kernels} kernels)")
+
+    results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": []}
+               for mode in MODES}
+    counter = CompilationCounter()
+    with counter:
+        for sequence in tqdm(np.unique(data["sequence"]), desc="sequences", unit="sequence"):
+            rows = np.flatnonzero(data["sequence"] == sequence)
+            rows = rows[np.argsort(data["frame"][rows])]
+            images, openings, truth = data["image"][rows], data["opening_mm"][rows], data["T_object_sensor"][rows]
+            for mode in MODES:
+                if mode == "re-localizing every frame":
+                    estimator = localizer
+                else:
+                    tracker.reset()
+                    if mode == "tracking from the true start":
+                        tracker.start(args.object, jaxlie.SE3(jnp.asarray(truth[0], jnp.float32)))
+                    estimator = tracker
+                poses, latency, tracked, relocalized = run_sequence(estimator, images, openings)
+                position, drift = errors(poses, truth)
+                for name, value in (("position_mm", position), ("drift_mm", drift), ("latency_s", latency),
+                                    ("tracked", tracked), ("relocalized", relocalized)):
+                    results[mode][name].append(value)
+
+    summary, rows = {}, []
+    for mode, result in results.items():
+        position = np.stack(result["position_mm"])  # (S, F)
+        latency, tracked = np.stack(result["latency_s"]), np.stack(result["tracked"])
+        relocalized = np.stack(result["relocalized"])
+        tracked_ms = 1e3 * float(np.median(latency[tracked])) if tracked.any() else None
+        entry = {
+            "median_error_mm": float(np.nanmedian(position)),
+            "first_frame_error_mm": float(np.nanmedian(position[:, 0])),
+            "last_frame_error_mm": float(np.nanmedian(position[:, -1])),
+            "end_drift_mm": float(np.nanmedian(result["drift_mm"])),
+            "relocalized_fraction": float(relocalized[:, 1:].mean()),
+            "median_latency_ms": 1e3 * float(np.median(latency)),
+            "tracked_latency_ms": tracked_ms,
+            "rate_hz": float(latency.size / latency.sum()),
+            "median_error_by_frame_mm": np.nanmedian(position, axis=0).tolist(),
+        }
+        summary[mode] = entry
+        rows.append([mode, entry["median_error_mm"], entry["first_frame_error_mm"], entry["last_frame_error_mm"],
+                     entry["end_drift_mm"], f"{100 * entry['relocalized_fraction']:.1f} %",
+                     entry["median_latency_ms"], tracked_ms if tracked_ms is not None else "-", entry["rate_hz"]])
+    print(format_table(["mode", "median error mm", "frame 0 mm", "last frame mm", "end drift mm",
+                        "re-localized", "median ms", "tracked ms", "rate Hz"], rows))
+    print(f"recompilations during the run: {counter.count}")
+    print("errors are sensor positions in the object frame against the simulator's truth; the drift is the error "
+          "of the estimated motion from frame 0 to the last")
+    if args.figure:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        figure, axis = plt.subplots(figsize=(7, 4), constrained_layout=True)
+        for mode in MODES:
+            position = np.stack(results[mode]["position_mm"])
+            axis.plot(np.nanmedian(position, axis=0), label=mode)
+        axis.set_xlabel("frame")
+        axis.set_ylabel("median position error over sequences (mm)")
+        axis.set_yscale("log")
+        axis.set_title(f"{args.object}: {args.sequences} slip sequences, up to {protocol.max_step_mm} mm and "
+                       f"{protocol.max_step_deg} deg per frame")
+        axis.legend()
+        figure.savefig(args.figure, dpi=120)
+        print(f"figure: {args.figure}")
+    if args.json:
+        write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": encoder_name,
+                               "method": args.method, "sequences": args.sequences, "frames": args.frames,
+                               "seed": args.seed, "recompilations": counter.count,
+                               "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},
+                               "kernels": {"tracker": tracker.kernels, "localizer": localizer.kernels},
+                               "modes": summary})
+
+
+if __name__ == "__main__":
+    main()
