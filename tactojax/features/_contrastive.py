@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 from tactojax.features._encoder import (
     Encoder, as_unit_range, encode_images, init_encoder, network_input, normalize_features, resize_image,
 )
+from tactojax.features._distill import distillation_loss
 from tactojax.features._touches import TouchData, object_pose_distances, retrieval_accuracy
 from tactojax.sensor import augment_colors
 
@@ -68,6 +69,13 @@ class ContrastiveConfig:
     seed: int = 0
     eval_every: int = 500
     """Validation retrieval every this many steps (0: only at the end)."""
+    contrastive_weight: float = 1.0
+    """Weight of the pose-neighbour InfoNCE term."""
+    teacher_weight: float = 0.0
+    """Weight of the distillation term (:func:`~tactojax.features.distillation_loss`), which
+    needs the teacher's features of the training touches; 0: no teacher."""
+    teacher_temperature: float = 0.02
+    """Softmax temperature of the teacher's similarities in the distillation term."""
 
 
 @struct.dataclass
@@ -148,6 +156,10 @@ def batch_loss(params, state: ContrastiveState, batch: dict, config: Contrastive
     output, updates = encoder.module.apply(variables, views, train=True, mutable=["batch_stats"])
     features = normalize_features(output)
     loss, accuracy = contrastive_loss(features, batch["positives"], config.temperature)
+    loss = config.contrastive_weight * loss
+    if config.teacher_weight > 0:
+        loss = loss + config.teacher_weight * distillation_loss(
+            features, batch["teacher"], config.temperature, config.teacher_temperature)
     return loss, (updates.get("batch_stats", {}), accuracy)
 
 
@@ -155,7 +167,8 @@ def make_train_step(config: ContrastiveConfig):
     """A jitted pure ``train_step(state, batch) -> (state, {"loss", "accuracy"})``.
 
     ``batch``: ``{"images": (2B, h, w, 3) uint8 at the input size, "positives": (2B, 2B) bool
-    pose-neighbour mask of the views (:func:`batch_positives`), "key": PRNG key}``.
+    pose-neighbour mask of the views (:func:`batch_positives`), "key": PRNG key}``, and with
+    ``config.teacher_weight > 0`` also ``"teacher": (2B, T)`` the teacher's unit features of the views.
     """
     optimizer = make_optimizer(config)
 
@@ -230,7 +243,10 @@ def sample_pairs(
 
 
 def resize_images(images: np.ndarray, size: tuple[int, int], *, batch_size: int = 256) -> np.ndarray:
-    """(K, H, W, 3) uint8 -> (K, h, w, 3) uint8 at ``size`` (antialiased bilinear)."""
+    """(K, H, W, 3) uint8 -> (K, h, w, 3) uint8 at ``size`` (antialiased bilinear); the images
+    themselves when they are at that size already."""
+    if tuple(images.shape[1:3]) == tuple(size):
+        return images
     resize = jax.jit(jax.vmap(lambda im: resize_image(as_unit_range(im), size)))
     parts = [np.asarray(resize(images[i:i + batch_size])) for i in range(0, len(images), batch_size)]
     return np.clip(np.round(np.concatenate(parts) * 255.0), 0, 255).astype(np.uint8)
@@ -249,6 +265,7 @@ def train_encoder(
     *,
     background: np.ndarray | None = None,
     held_out: np.ndarray | None = None,
+    teacher_features: np.ndarray | None = None,
     progress: bool = True,
 ) -> tuple[Encoder, list[dict]]:
     """Train a tactile encoder with pose-neighbour positives (see the module docstring).
@@ -259,6 +276,8 @@ def train_encoder(
         background: (H, W, 3) no-contact frame in [0, 1] (default: estimated from the images).
         held_out: (K,) bool, touches not trained on; they are the validation queries,
             retrieved among all touches of their object (:func:`retrieval_accuracy`).
+        teacher_features: (K, T) unit features of ``touches`` from a teacher encoder (e.g.
+            ImageNet EfficientNet-Lite0), needed when ``config.teacher_weight > 0``.
         progress: show a progress bar with the loss.
 
     Returns:
@@ -266,6 +285,10 @@ def train_encoder(
         "batch_accuracy", and the validation metrics when held_out is given}``.
     """
     held_out = np.zeros(len(touches), bool) if held_out is None else np.asarray(held_out, bool)
+    if config.teacher_weight > 0:
+        if teacher_features is None or len(teacher_features) != len(touches):
+            raise ValueError("teacher_weight > 0 needs teacher_features, one row per touch")
+        teacher_train = np.asarray(teacher_features, np.float32)[~held_out]
     if background is None:
         background = estimate_background(touches.images)
     small = resize_images(touches.images, config.input_size)
@@ -285,6 +308,8 @@ def train_encoder(
         rows = np.concatenate([anchors, partners])
         batch = {"images": train.images[rows], "positives": neighbours.mask(rows),
                  "key": jax.random.fold_in(base_key, step)}
+        if config.teacher_weight > 0:
+            batch["teacher"] = teacher_train[rows]
         state, metrics = train_step(state, batch)
         losses.append(metrics["loss"])
         accuracies.append(metrics["accuracy"])
