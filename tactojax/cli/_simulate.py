@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 
@@ -18,7 +19,8 @@ def add_parser(commands) -> None:
         description="Simulate the paper's mapping (section V) or calibration (section IV) "
         "protocol, or new grasps off the mapping grid (a localization test set), on a catalog "
         "object or a mesh file, appending imprints to a dataset.")
-    parser.add_argument("object", help="catalog name (see `tactojax info --objects`) or mesh path (STL/OBJ/PLY)")
+    parser.add_argument("object", help="catalog name (see `tactojax info --objects`), ycb:ID (`tactojax info --ycb all`) "
+                                       "or mesh path (STL/OBJ/PLY)")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
     parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps"], default="mapping")
@@ -28,6 +30,8 @@ def add_parser(commands) -> None:
                              "0.2 mm/px, the bundled shape model's resolution, so that `tactojax map` reads the "
                              "dataset with its default model; 1 is full resolution)")
     parser.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
+    parser.add_argument("--max-grasps", type=int, default=None,
+                        help="mapping: widen the grid (0.5 mm steps) until the plan has at most this many grasps")
     parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0], help="mapping yaws, degrees")
     parser.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0], help="object turns, degrees")
     parser.add_argument("--touches", type=int, default=600, help="calibration touches per shape (default 600)")
@@ -47,7 +51,7 @@ def run(args) -> int:
     from tactojax.io import MeshRepairedWarning, simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
-    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol
+    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, mapping_grid_for
 
     with warnings.catch_warnings():  # said below, once, without a source line
         warnings.simplefilter("ignore", MeshRepairedWarning)
@@ -57,6 +61,9 @@ def run(args) -> int:
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))
+        if args.max_grasps is not None:
+            protocol = dataclasses.replace(protocol, grid_mm=mapping_grid_for(obj, protocol, args.max_grasps))
+            print(f"{obj.name}: grid {protocol.grid_mm:g} mm (at most {args.max_grasps} grasps)")
     elif args.protocol == "grasps":
         protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps_per_episode,
                                   fingers=args.fingers, yaw_range_deg=args.yaw_range_deg,
