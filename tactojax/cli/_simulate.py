@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import time
 import warnings
+from pathlib import Path
 
 import jax
 
@@ -72,8 +74,15 @@ def run(args) -> int:
         protocol = CalibrationProtocol(touches=args.touches)
     config = GraspConfig(depth_mm=args.depth_mm, depth_noise_mm=args.depth_noise_mm)
     start = time.perf_counter()
-    count = simulate_to_dataset(args.out, jax.random.key(args.seed), spec, obj, protocol, config=config,
-                                batch_size=args.batch_size, progress=not args.no_progress)
+    out = Path(args.out)
+    existed = out.exists()
+    try:
+        count = simulate_to_dataset(out, jax.random.key(args.seed), spec, obj, protocol, config=config,
+                                    batch_size=args.batch_size, progress=not args.no_progress)
+    except Exception:
+        if not existed and not (out / "manifest.json").exists():  # nothing written: leave no empty dataset behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     print(f"{obj.name}: wrote {count} imprints ({args.protocol}, {spec.name} "
           f"{spec.height_px}x{spec.width_px}) to {args.out} in {time.perf_counter() - start:.1f} s")
     if obj.attribution:
