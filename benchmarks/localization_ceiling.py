@@ -53,6 +53,34 @@ def pose_rmse_to_every_imprint(tactile_map, view: LocalizationMap, query: int) -
     return np.asarray(moment_rmse(*cloud_moments(points, valid), T_true, T_all))
 
 
+def retrieved_near(tactile_map, view: LocalizationMap, index: int, retrieve: int) -> np.ndarray:
+    """(retrieve,) bool: which of the ``retrieve`` most similar imprints (CTI, query ``index``
+    left out) are true neighbours, their pose within ``NEAR_MM`` of the best stored pose (cloud RMSE)."""
+    query = map_query(view, index)
+    rmse = pose_rmse_to_every_imprint(tactile_map, view, index)
+    indices, _, valid = jax.device_get(closest_imprints(view.features, view.openings, view.imprint_valid,
+                                                        query.feature, query.opening, retrieve, exclude=index))
+    T_true = jaxlie.SE3(view.T_object_sensor.wxyz_xyz[index])
+    # The best pose any retrievable imprint offers: oracle retrieval's first choice.
+    nearest, nearest_valid = jax.device_get(oracle_imprints(
+        view, tactile_map.points[index], tactile_map.valid[index], T_true, query.opening, 1, exclude=index))
+    best = rmse[nearest[0]] if nearest_valid[0] else np.inf
+    return (rmse[indices] <= best + NEAR_MM) & valid
+
+
+def retrieval_recall(tactile_map, queries: np.ndarray, recall_at=(1, 5, 15, 50), *, progress: bool = True) -> dict:
+    """``{str(N): recall@N}``: the share of ``queries`` whose N most similar imprints hold a true
+    neighbour (:func:`retrieved_near`); the map's features decide the ranking."""
+    view = LocalizationMap.from_tactile_map(tactile_map)
+    retrieve = min(max(recall_at), len(view))
+    has_near = {k: [] for k in recall_at}
+    for index in tqdm(queries.tolist(), desc=f"{tactile_map.object_id} recall", unit="touch", disable=not progress):
+        near = retrieved_near(tactile_map, view, index, retrieve)
+        for k in recall_at:
+            has_near[k].append(bool(near[:k].any()))
+    return {str(k): float(np.mean(v)) for k, v in has_near.items()}
+
+
 def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) -> dict:
     """The three diagnostics of the module docstring for one map (a JSON-ready dict)."""
     view = LocalizationMap.from_tactile_map(tactile_map)
@@ -74,15 +102,8 @@ def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) 
     key = jax.random.key(0)
     for index in tqdm(queries.tolist(), desc=f"{tactile_map.object_id} {method}", unit="touch"):
         query = map_query(view, index)
-        rmse = pose_rmse_to_every_imprint(tactile_map, view, index)
-        indices, _, valid = jax.device_get(closest_imprints(view.features, view.openings, view.imprint_valid,
-                                                            query.feature, query.opening, retrieve, exclude=index))
+        near = retrieved_near(tactile_map, view, index, retrieve)
         T_true = jaxlie.SE3(view.T_object_sensor.wxyz_xyz[index])
-        # The best pose any retrievable imprint offers: oracle retrieval's first choice.
-        nearest, nearest_valid = jax.device_get(oracle_imprints(
-            view, tactile_map.points[index], tactile_map.valid[index], T_true, query.opening, 1, exclude=index))
-        best = rmse[nearest[0]] if nearest_valid[0] else np.inf
-        near = (rmse[indices] <= best + NEAR_MM) & valid
         for k in recall_at:
             has_near[k].append(bool(near[:k].any()))
         estimate = localize(key, view, query, method=method, exclude=index)

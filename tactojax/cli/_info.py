@@ -11,14 +11,22 @@ def add_parser(commands) -> None:
     parser.add_argument("dataset", nargs="?", help="dataset directory")
     parser.add_argument("--json", metavar="PATH", help="also write the summary as JSON")
     parser.add_argument("--objects", action="store_true", help="list the built-in object catalog")
+    parser.add_argument("--ycb", choices=["all", "training"],
+                        help="list the ids of the YCB scans (simulate them as ycb:ID), one per line; training: "
+                             "without the evaluation objects' scans (scissors, markers, screwdrivers)")
     parser.set_defaults(run=run)
 
 
 def run(args) -> int:
     if args.objects:
         return _list_objects(args)
+    if args.ycb:
+        from tactojax.objects import ycb_scans
+
+        print("\n".join(ycb_scans(training=args.ycb == "training")))
+        return 0
     if not args.dataset:
-        raise ValueError("give a dataset directory, or --objects to list the catalog")
+        raise ValueError("give a dataset directory, or --objects to list the catalog (--ycb the YCB scans)")
     from tactojax.io import dataset_summary
 
     summary = dataset_summary(args.dataset)

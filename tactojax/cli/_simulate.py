@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+import shutil
 import time
 import warnings
+from pathlib import Path
 
 import jax
 
@@ -19,7 +22,8 @@ def add_parser(commands) -> None:
         "protocol, new grasps off the mapping grid (a localization test set) or slip sequences "
         "(the object sliding and turning in a grasp, a tracking test set), on a catalog "
         "object or a mesh file, appending imprints to a dataset.")
-    parser.add_argument("object", help="catalog name (see `tactojax info --objects`) or mesh path (STL/OBJ/PLY)")
+    parser.add_argument("object", help="catalog name (see `tactojax info --objects`), ycb:ID (`tactojax info --ycb all`) "
+                                       "or mesh path (STL/OBJ/PLY)")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
     parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps", "slip"], default="mapping")
@@ -29,6 +33,8 @@ def add_parser(commands) -> None:
                              "0.2 mm/px, the bundled shape model's resolution, so that `tactojax map` reads the "
                              "dataset with its default model; 1 is full resolution)")
     parser.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
+    parser.add_argument("--max-grasps", type=int, default=None,
+                        help="mapping: widen the grid (0.5 mm steps) until the plan has at most this many grasps")
     parser.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0], help="mapping yaws, degrees")
     parser.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0], help="object turns, degrees")
     parser.add_argument("--touches", type=int, default=600, help="calibration touches per shape (default 600)")
@@ -54,7 +60,8 @@ def run(args) -> int:
     from tactojax.io import MeshRepairedWarning, simulate_to_dataset
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
-    from tactojax.simulate import CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol
+    from tactojax.simulate import (CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol,
+                                   mapping_grid_for)
 
     with warnings.catch_warnings():  # said below, once, without a source line
         warnings.simplefilter("ignore", MeshRepairedWarning)
@@ -64,6 +71,9 @@ def run(args) -> int:
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))
+        if args.max_grasps is not None:
+            protocol = dataclasses.replace(protocol, grid_mm=mapping_grid_for(obj, protocol, args.max_grasps))
+            print(f"{obj.name}: grid {protocol.grid_mm:g} mm (at most {args.max_grasps} grasps)")
     elif args.protocol == "grasps":
         protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps_per_episode,
                                   fingers=args.fingers, yaw_range_deg=args.yaw_range_deg,
@@ -76,8 +86,15 @@ def run(args) -> int:
         protocol = CalibrationProtocol(touches=args.touches)
     config = GraspConfig(depth_mm=args.depth_mm, depth_noise_mm=args.depth_noise_mm)
     start = time.perf_counter()
-    count = simulate_to_dataset(args.out, jax.random.key(args.seed), spec, obj, protocol, config=config,
-                                batch_size=args.batch_size, progress=not args.no_progress)
+    out = Path(args.out)
+    existed = out.exists()
+    try:
+        count = simulate_to_dataset(out, jax.random.key(args.seed), spec, obj, protocol, config=config,
+                                    batch_size=args.batch_size, progress=not args.no_progress)
+    except Exception:
+        if not existed and not (out / "manifest.json").exists():  # nothing written: leave no empty dataset behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     print(f"{obj.name}: wrote {count} imprints ({args.protocol}, {spec.name} "
           f"{spec.height_px}x{spec.width_px}) to {args.out} in {time.perf_counter() - start:.1f} s")
     if obj.attribution:

@@ -27,7 +27,8 @@ def add_parser(commands) -> None:
     parser.add_argument("data", nargs="+", help="grasp datasets (mapping protocol) of training objects")
     parser.add_argument("--out", required=True, help="encoder checkpoint to write (.msgpack)")
     defaults = _default_config()
-    parser.add_argument("--preset", default=defaults.preset, help="architecture (resnet_tactile, resnet_tiny, resnet18)")
+    parser.add_argument("--preset", default=defaults.preset,
+                        help="architecture (plain_tactile, plain_tiny, resnet_tactile, resnet_tiny, resnet18)")
     parser.add_argument("--input-size", type=int, nargs=2, default=list(defaults.input_size), metavar=("H", "W"),
                         help="network input, pixels")
     parser.add_argument("--steps", type=int, default=defaults.steps)
@@ -36,11 +37,23 @@ def add_parser(commands) -> None:
     parser.add_argument("--temperature", type=float, default=defaults.temperature)
     parser.add_argument("--positive-mm", type=float, default=defaults.positive_mm)
     parser.add_argument("--positive-deg", type=float, default=defaults.positive_deg)
+    parser.add_argument("--soft-positive-mm", type=float, default=defaults.soft_positive_mm,
+                        help="weigh pose neighbours by exp(-pose cost / this) so the nearest rank first (0: alike)")
+    parser.add_argument("--objects-per-batch", type=int, default=defaults.objects_per_batch)
+    parser.add_argument("--contrastive-weight", type=float, default=defaults.contrastive_weight,
+                        help="weight of the pose-neighbour contrastive term")
+    parser.add_argument("--teacher", metavar="ENCODER", default=None,
+                        help="distil the neighbourhoods of this encoder's features (e.g. imagenet:efficientnet-lite0)")
+    parser.add_argument("--teacher-weight", type=float, default=1.0, help="weight of the distillation term (with --teacher)")
+    parser.add_argument("--teacher-temperature", type=float, default=defaults.teacher_temperature)
     parser.add_argument("--held-out", type=float, default=0.1, help="fraction of touches per object held out")
     parser.add_argument("--eval-every", type=int, default=defaults.eval_every)
     parser.add_argument("--eval-data", nargs="+", default=[], metavar="DATA",
                         help="datasets of unseen objects to evaluate retrieval on")
     parser.add_argument("--seed", type=int, default=defaults.seed)
+    parser.add_argument("--checkpoint-every", type=int, default=defaults.checkpoint_every,
+                        help="save a resumable OUT.train-state every this many steps")
+    parser.add_argument("--restart", action="store_true", help="ignore OUT.train-state and start over")
     parser.add_argument("--json", metavar="PATH", help="write the metrics as JSON")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.set_defaults(run=run)
@@ -87,9 +100,10 @@ def evaluate_unseen(encoder, paths, *, progress: bool) -> dict:
 
 
 def run(args) -> int:
-    from tactojax.features import ContrastiveConfig, estimate_background, split_held_out, train_encoder
+    from tactojax.features import ContrastiveConfig, encode_images, estimate_background, split_held_out, train_encoder
     from tactojax.features._touches import NEIGHBOUR_DEG, NEIGHBOUR_MM, OPENING_WINDOW_MM
-    from tactojax.io import load_touches, save_encoder
+    from tactojax.io import (load_encoder_train_state, load_touches, resolve_encoder, save_encoder,
+                             save_encoder_train_state)
 
     if not 0.0 <= args.held_out < 1.0:
         raise ValueError(f"--held-out must be in [0, 1), got {args.held_out}")
@@ -98,19 +112,32 @@ def run(args) -> int:
     touches = load_touches(args.data)
     config = ContrastiveConfig(
         preset=args.preset, input_size=tuple(args.input_size), steps=args.steps, batch_size=args.batch_size,
-        learning_rate=args.learning_rate, temperature=args.temperature, positive_mm=args.positive_mm,
-        positive_deg=args.positive_deg, eval_every=args.eval_every, seed=args.seed)
+        objects_per_batch=args.objects_per_batch, learning_rate=args.learning_rate, temperature=args.temperature,
+        positive_mm=args.positive_mm, positive_deg=args.positive_deg, soft_positive_mm=args.soft_positive_mm,
+        eval_every=args.eval_every, seed=args.seed, checkpoint_every=args.checkpoint_every,
+        contrastive_weight=args.contrastive_weight, teacher_weight=args.teacher_weight if args.teacher else 0.0,
+        teacher_temperature=args.teacher_temperature)
     held_out = split_held_out(touches, args.held_out, seed=args.seed)
     print(f"training {args.preset} at {config.input_size[0]}x{config.input_size[1]} px on "
-          f"{int((~held_out).sum())} touches of {', '.join(touches.objects)} "
-          f"({int(held_out.sum())} held out)")
+          f"{int((~held_out).sum())} touches of {len(touches.objects)} objects ({int(held_out.sum())} held out)")
+    state_path = out.with_name(out.name + ".train-state")
+    state, history = None, None
+    if state_path.exists() and not args.restart:
+        state, history = load_encoder_train_state(state_path, config)
+        print(f"resuming from step {int(state.step)} ({state_path})")
     started = time.perf_counter()
+    teacher = None
+    if args.teacher:
+        print(f"teacher features: {args.teacher}")
+        teacher = encode_images(resolve_encoder(args.teacher), touches.images, progress=not args.no_progress)
     encoder, history = train_encoder(touches, config, background=estimate_background(touches.images),
-                                     held_out=held_out, progress=not args.no_progress)
+                                     held_out=held_out, teacher_features=teacher, state=state, history=history,
+                                     on_checkpoint=lambda s, h: save_encoder_train_state(state_path, s, config, h),
+                                     progress=not args.no_progress)
     seconds = time.perf_counter() - started
     report = {"preset": args.preset, "data": [str(p) for p in args.data], "objects": list(touches.objects),
-              "touches": len(touches), "held_out": int(held_out.sum()), "config": dataclasses.asdict(config),
-              "train_seconds": round(seconds, 1), "history": history}
+              "touches": len(touches), "held_out": int(held_out.sum()), "teacher": args.teacher,
+              "config": dataclasses.asdict(config), "train_seconds": round(seconds, 1), "history": history}
     rows = []
     if held_out.any():
         rows.append(_row("held-out touches", {k: history[-1][k] for k in ("queries", "top1_rate", "median_top1_mm",
@@ -125,7 +152,8 @@ def run(args) -> int:
               f"within {NEIGHBOUR_MM:g} mm and {NEIGHBOUR_DEG:g} deg of the query, up to the object's "
               f"symmetries)\n" + format_table(HEADERS, rows))
     save_encoder(out, encoder, metadata=report)
-    print(f"wrote {out} after {seconds:.0f} s of training")
+    state_path.unlink(missing_ok=True)  # the run is complete; the checkpoint holds the result
+    print(f"wrote {out} after {seconds:.0f} s (this run; teacher features included)")
     if args.json:
         write_json(args.json, report)
     return 0

@@ -1,4 +1,4 @@
-"""Imprint features for retrieval (paper section VI): ResNet / EfficientNet encoders. Pure JAX."""
+"""Imprint features for retrieval (paper section VI): plain convolutional, ResNet and EfficientNet encoders. Pure JAX."""
 
 from tactojax.features._contrastive import ContrastiveConfig as ContrastiveConfig
 from tactojax.features._contrastive import ContrastiveState as ContrastiveState
@@ -8,6 +8,7 @@ from tactojax.features._contrastive import estimate_background as estimate_backg
 from tactojax.features._contrastive import make_train_step as make_train_step
 from tactojax.features._contrastive import split_held_out as split_held_out
 from tactojax.features._contrastive import train_encoder as train_encoder
+from tactojax.features._distill import distillation_loss as distillation_loss
 from tactojax.features._convert import StateDictMismatchError as StateDictMismatchError
 from tactojax.features._convert import drop_classifier as drop_classifier
 from tactojax.features._convert import efficientnet_lite_variables as efficientnet_lite_variables
@@ -28,6 +29,11 @@ from tactojax.features._encoder import encode_images as encode_images
 from tactojax.features._encoder import init_encoder as init_encoder
 from tactojax.features._encoder import pixel_encoder as pixel_encoder
 from tactojax.features._encoder import with_background as with_background
+from tactojax.features._plain import PLAIN_PRESETS as PLAIN_PRESETS
+from tactojax.features._plain import PlainConvNet as PlainConvNet
+from tactojax.features._plain import PlainTactile as PlainTactile
+from tactojax.features._plain import PlainTiny as PlainTiny
+from tactojax.features._plain import space_to_depth as space_to_depth
 from tactojax.features._pretrained import EFFICIENTNET_LITE_MEAN as EFFICIENTNET_LITE_MEAN
 from tactojax.features._pretrained import EFFICIENTNET_LITE_STD as EFFICIENTNET_LITE_STD
 from tactojax.features._pretrained import IMAGENET_IMAGE_SIZE as IMAGENET_IMAGE_SIZE
@@ -56,6 +62,7 @@ __all__ = [
     "ContrastiveState",
     "PoseNeighbours",
     "contrastive_loss",
+    "distillation_loss",
     "estimate_background",
     "make_train_step",
     "split_held_out",
@@ -86,6 +93,11 @@ __all__ = [
     "EfficientNetLite0",
     "EfficientNetLiteTiny",
     "MBConvBlock",
+    "PLAIN_PRESETS",
+    "PlainConvNet",
+    "PlainTactile",
+    "PlainTiny",
+    "space_to_depth",
     "EFFICIENTNET_LITE_MEAN",
     "EFFICIENTNET_LITE_STD",
     "IMAGENET_IMAGE_SIZE",

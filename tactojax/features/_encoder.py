@@ -28,9 +28,11 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from tqdm.auto import tqdm
 
 from tactojax.features._efficientnet import EfficientNetLite0
+from tactojax.features._plain import PLAIN_PRESETS
 from tactojax.features._resnet import RESNET_PRESETS
 
-ARCHITECTURES: dict[str, Callable[[], nn.Module]] = {**RESNET_PRESETS, "efficientnet_lite0": EfficientNetLite0}
+ARCHITECTURES: dict[str, Callable[[], nn.Module]] = {**RESNET_PRESETS, **PLAIN_PRESETS,
+                                                     "efficientnet_lite0": EfficientNetLite0}
 """Architecture name -> module constructor, used to rebuild an encoder from a checkpoint.
 Other encoder families register here (e.g. ``ARCHITECTURES.update(EFFICIENTNET_PRESETS)``)."""
 

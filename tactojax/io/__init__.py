@@ -15,8 +15,10 @@ from tactojax.io._imprints import sensor_metadata as sensor_metadata
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
+from tactojax.io._encoder import load_encoder_train_state as load_encoder_train_state
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
+from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
 from tactojax.io._imprints import dataset_metadata as dataset_metadata
 from tactojax.io._imprints import load_imprints as load_imprints
 from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
@@ -63,9 +65,11 @@ __all__ = [
     "bundled_encoders",
     "encoder_metadata",
     "load_encoder",
+    "load_encoder_train_state",
     "load_touches",
     "resolve_encoder",
     "save_encoder",
+    "save_encoder_train_state",
     "sensor_metadata",
     "dataset_metadata",
     "dataset_summary",

@@ -5,11 +5,15 @@ Checkpoint format (``.msgpack``, no pickle, written atomically): a msgpack map
 [h, w], "mean": [3], "std": [3], "feature_dim": int, "background": (h, w, 3) float32 or an
 empty array for none, "variables": nested map of float32 arrays (flax state dict),
 "metadata": JSON string}``. The architecture must be a key of
-``tactojax.features.ARCHITECTURES``.
+``tactojax.features.ARCHITECTURES``. A resumable training state (``MODEL.train-state`` of
+``tactojax train-features``) has the same encoder fields under ``"format":
+"tactojax-feature-train-state"``, plus ``"opt_state"``, ``"step"``, ``"history"`` and ``"config"``
+(JSON strings for the last two).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -18,14 +22,24 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
+from tactojax.features._contrastive import ContrastiveConfig, ContrastiveState
 from tactojax.features._encoder import ARCHITECTURES, Encoder, build_encoder
 from tactojax.io._atomic import atomic_write_bytes
 from tactojax.io._shape import BUNDLED_DIR, CorruptCheckpointError, read_checkpoint_payload
 
 ENCODER_FORMAT = "tactojax-feature-encoder"
 ENCODER_VERSION = 1
+STATE_FORMAT = "tactojax-feature-train-state"
 BUNDLED_PREFIX = "features-"
 """Shipped encoders are ``tactojax/checkpoints/features-*.msgpack``."""
+
+
+def _encoder_fields(encoder: Encoder) -> dict:
+    background = np.zeros((0,), np.float32) if encoder.background is None else encoder.background
+    return {"architecture": encoder.architecture, "input_size": list(encoder.input_size), "mean": list(encoder.mean),
+            "std": list(encoder.std), "feature_dim": encoder.feature_dim,
+            "background": np.asarray(background, np.float32),
+            "variables": serialization.to_state_dict(jax.device_get(encoder.variables))}
 
 
 def save_encoder(path, encoder: Encoder, *, metadata: dict | None = None) -> Path:
@@ -36,14 +50,8 @@ def save_encoder(path, encoder: Encoder, *, metadata: dict | None = None) -> Pat
         encoder: the encoder; its architecture must be registered to be loaded back.
         metadata: JSON-serialisable notes (training data, settings, metrics).
     """
-    background = np.zeros((0,), np.float32) if encoder.background is None else encoder.background
-    payload = {
-        "format": ENCODER_FORMAT, "version": ENCODER_VERSION, "architecture": encoder.architecture,
-        "input_size": list(encoder.input_size), "mean": list(encoder.mean), "std": list(encoder.std),
-        "feature_dim": encoder.feature_dim, "background": np.asarray(background, np.float32),
-        "variables": serialization.to_state_dict(jax.device_get(encoder.variables)),
-        "metadata": json.dumps(metadata or {}),
-    }
+    payload = {"format": ENCODER_FORMAT, "version": ENCODER_VERSION, **_encoder_fields(encoder),
+               "metadata": json.dumps(metadata or {})}
     path = Path(path)
     atomic_write_bytes(path, serialization.msgpack_serialize(payload))
     return path
@@ -53,10 +61,7 @@ def _read(path) -> dict:
     return read_checkpoint_payload(path, ENCODER_FORMAT, (ENCODER_VERSION,), kind="encoder checkpoint")
 
 
-def load_encoder(path) -> Encoder:
-    """Read an encoder written by :func:`save_encoder`; weights are checked against the
-    architecture's shapes."""
-    payload = _read(path)
+def _encoder_from_payload(payload: dict, path) -> Encoder:
     try:
         architecture = str(payload["architecture"])
         if architecture not in ARCHITECTURES:
@@ -80,6 +85,45 @@ def load_encoder(path) -> Encoder:
     except (KeyError, ValueError, TypeError) as error:
         raise CorruptCheckpointError(f"{path}: malformed encoder checkpoint ({error})") from None
     return encoder
+
+
+def load_encoder(path) -> Encoder:
+    """Read an encoder written by :func:`save_encoder`; weights are checked against the
+    architecture's shapes."""
+    return _encoder_from_payload(_read(path), path)
+
+
+def save_encoder_train_state(path, state: ContrastiveState, config: ContrastiveConfig, history: list[dict]) -> Path:
+    """Write a resumable encoder training state atomically: the encoder (as in a checkpoint),
+    the optimiser state, the step, the history so far and the settings."""
+    payload = {"format": STATE_FORMAT, "version": ENCODER_VERSION, **_encoder_fields(state.encoder),
+               "opt_state": serialization.to_state_dict(jax.device_get(state.opt_state)),
+               "step": int(state.step), "history": json.dumps(history),
+               "config": json.dumps(dataclasses.asdict(config))}
+    path = Path(path)
+    atomic_write_bytes(path, serialization.msgpack_serialize(payload))
+    return path
+
+
+def load_encoder_train_state(path, config: ContrastiveConfig) -> tuple[ContrastiveState, list[dict]]:
+    """Read a state of :func:`save_encoder_train_state`; ``config`` must be the one it was saved with.
+
+    Returns:
+        (state, history) to pass to ``tactojax.features.train_encoder``.
+    """
+    from tactojax.features._contrastive import make_optimizer
+
+    payload = read_checkpoint_payload(path, STATE_FORMAT, (ENCODER_VERSION,), kind="encoder training state")
+    saved = json.loads(payload["config"])
+    current = json.loads(json.dumps(dataclasses.asdict(config)))
+    if saved != current:
+        changed = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k))
+        raise ValueError(f"cannot resume {path}: training settings changed ({', '.join(changed)})")
+    encoder = _encoder_from_payload(payload, path)
+    template = make_optimizer(config).init(encoder.variables["params"])
+    opt_state = serialization.from_state_dict(template, payload["opt_state"])
+    state = ContrastiveState(encoder=encoder, opt_state=opt_state, step=jnp.asarray(int(payload["step"]), jnp.int32))
+    return state, json.loads(payload["history"])
 
 
 def encoder_metadata(path) -> dict:

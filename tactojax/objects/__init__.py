@@ -2,12 +2,15 @@
 
 from tactojax.objects._catalog import CALIBRATION_SHAPES as CALIBRATION_SHAPES
 from tactojax.objects._catalog import CATALOG as CATALOG
+from tactojax.objects._catalog import EVALUATION_YCB_SCANS as EVALUATION_YCB_SCANS
 from tactojax.objects._catalog import HOUSEHOLD_OBJECTS as HOUSEHOLD_OBJECTS
 from tactojax.objects._catalog import TABLE2_SHAPES as TABLE2_SHAPES
 from tactojax.objects._catalog import YCB_ATTRIBUTION as YCB_ATTRIBUTION
 from tactojax.objects._catalog import get_object as get_object
 from tactojax.objects._catalog import object_from_mesh as object_from_mesh
 from tactojax.objects._catalog import resolve_object as resolve_object
+from tactojax.objects._catalog import ycb_object as ycb_object
+from tactojax.objects._catalog import ycb_scans as ycb_scans
 from tactojax.objects._mesh import MeshSolid as MeshSolid
 from tactojax.objects._mesh import mount_mesh as mount_mesh
 from tactojax.objects._object import TactileObject as TactileObject
@@ -27,8 +30,8 @@ from tactojax.objects._raycast import RayHits as RayHits
 from tactojax.objects._raycast import raycast as raycast
 
 __all__ = [
-    "CALIBRATION_SHAPES", "CATALOG", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
+    "CALIBRATION_SHAPES", "CATALOG", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
     "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "ObjectSymmetry", "Placed", "RayHits", "Solid",
     "Sphere", "SquareFrustum", "TactileObject", "Union", "get_object", "mount_mesh",
-    "object_from_mesh", "placed", "raycast", "resolve_object",
+    "object_from_mesh", "placed", "raycast", "resolve_object", "ycb_object", "ycb_scans",
 ]

