@@ -9,7 +9,9 @@ up to 0.5 mm and 1 degree of slip per frame, 200 frames per sequence). Every fra
   0 (``Tracker.start``), which separates how well it follows from how well it starts;
 - **re-localizing every frame** (:class:`tactojax.localize.Localizer`).
 
-Reported per mode: position error of the sensor pose (mm) over all frames, at the first and
+Reported per mode: position error of the sensor pose (mm) over all frames, over the frames
+whose touch is at least ``TrackingSettings.min_relocalize_px`` contact pixels and over the
+smaller ones (a pinpoint contact says little about where it is), at the first and
 the last frame; the drift at the end (error of the estimated motion since frame 0 against the
 true motion); re-localizations per frame; latency (median, and tracked frames alone) and the
 sustained rate. A figure shows the median error against the frame index.
@@ -21,8 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
-import zlib
 from pathlib import Path
 
 import jax
@@ -35,7 +35,7 @@ from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.io import open_dataset, read_grasps, resolve_encoder, resolve_shape_model, simulate_to_dataset
-from tactojax.localize import Localizer, Tracker
+from tactojax.localize import Localizer, Tracker, TrackingSettings
 from tactojax.mapping import build_tactile_map
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
@@ -56,7 +56,9 @@ def slip_sequences(work: Path, name: str, protocol: SlipProtocol, seed: int) -> 
     path = work / f"{name}-slip-s{protocol.sequences}-f{protocol.frames}-seed{seed}"
     if not (path / "manifest.json").exists():
         simulate_to_dataset(path, jax.random.key(seed), gelslim(scale=0.5), get_object(name), protocol)
-    data = open_dataset(path).read(["image", "opening_mm", "T_world_gripper", "T_world_object", "sequence", "frame"])
+    data = open_dataset(path).read(["image", "mask", "opening_mm", "T_world_gripper", "T_world_object", "sequence",
+                                    "frame"])
+    data["contact_px"] = data.pop("mask").sum(axis=(1, 2))
     T_world_sensor = sensor_pose(jaxlie.SE3(jnp.asarray(data["T_world_gripper"])), jnp.asarray(data["opening_mm"]))
     T_object_sensor = jaxlie.SE3(jnp.asarray(data["T_world_object"])).inverse() @ T_world_sensor
     data["T_object_sensor"] = np.asarray(T_object_sensor.wxyz_xyz)
@@ -83,6 +85,14 @@ def errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, float]:
     position = np.linalg.norm(poses[:, 4:] - truth[:, 4:], axis=1)
     drift = np.linalg.norm((poses[-1, 4:] - poses[0, 4:]) - (truth[-1, 4:] - truth[0, 4:]))
     return position, float(drift)
+
+
+def _nanmedian(values: np.ndarray) -> float | None:
+    return float(np.nanmedian(values)) if np.isfinite(values).any() else None
+
+
+def _cell(value: float | None) -> float | str:
+    return "-" if value is None else value
 
 
 def main() -> None:
@@ -121,12 +131,14 @@ def main() -> None:
 
     results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": []}
                for mode in MODES}
+    contact_px = []  # per sequence, (F,) true contact pixels
     counter = CompilationCounter()
     with counter:
         for sequence in tqdm(np.unique(data["sequence"]), desc="sequences", unit="sequence"):
             rows = np.flatnonzero(data["sequence"] == sequence)
             rows = rows[np.argsort(data["frame"][rows])]
             images, openings, truth = data["image"][rows], data["opening_mm"][rows], data["T_object_sensor"][rows]
+            contact_px.append(data["contact_px"][rows])
             for mode in MODES:
                 if mode == "re-localizing every frame":
                     estimator = localizer
@@ -141,6 +153,7 @@ def main() -> None:
                                     ("tracked", tracked), ("relocalized", relocalized)):
                     results[mode][name].append(value)
 
+    small = np.stack(contact_px) < TrackingSettings().min_relocalize_px  # (S, F) touches too small to localize
     summary, rows = {}, []
     for mode, result in results.items():
         position = np.stack(result["position_mm"])  # (S, F)
@@ -149,6 +162,8 @@ def main() -> None:
         tracked_ms = 1e3 * float(np.median(latency[tracked])) if tracked.any() else None
         entry = {
             "median_error_mm": float(np.nanmedian(position)),
+            "median_error_larger_touches_mm": _nanmedian(position[~small]),
+            "median_error_small_touches_mm": _nanmedian(position[small]),
             "first_frame_error_mm": float(np.nanmedian(position[:, 0])),
             "last_frame_error_mm": float(np.nanmedian(position[:, -1])),
             "end_drift_mm": float(np.nanmedian(result["drift_mm"])),
@@ -159,10 +174,13 @@ def main() -> None:
             "median_error_by_frame_mm": np.nanmedian(position, axis=0).tolist(),
         }
         summary[mode] = entry
-        rows.append([mode, entry["median_error_mm"], entry["first_frame_error_mm"], entry["last_frame_error_mm"],
+        rows.append([mode, entry["median_error_mm"], _cell(entry["median_error_larger_touches_mm"]),
+                     _cell(entry["median_error_small_touches_mm"]), entry["first_frame_error_mm"], entry["last_frame_error_mm"],
                      entry["end_drift_mm"], f"{100 * entry['relocalized_fraction']:.1f} %",
                      entry["median_latency_ms"], tracked_ms if tracked_ms is not None else "-", entry["rate_hz"]])
-    print(format_table(["mode", "median error mm", "frame 0 mm", "last frame mm", "end drift mm",
+    print(f"{100 * small.mean():.0f} % of the frames touch fewer than {TrackingSettings().min_relocalize_px} contact "
+          f"pixels (median contact {int(np.median(np.stack(contact_px)))} px)")
+    print(format_table(["mode", "median error mm", f"touches >= {TrackingSettings().min_relocalize_px} px", "smaller", "frame 0 mm", "last frame mm", "end drift mm",
                         "re-localized", "median ms", "tracked ms", "rate Hz"], rows))
     print(f"recompilations during the run: {counter.count}")
     print("errors are sensor positions in the object frame against the simulator's truth; the drift is the error "
@@ -189,6 +207,7 @@ def main() -> None:
         write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": encoder_name,
                                "method": args.method, "sequences": args.sequences, "frames": args.frames,
                                "seed": args.seed, "recompilations": counter.count,
+                               "small_touch_fraction": float(small.mean()),
                                "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},
                                "kernels": {"tracker": tracker.kernels, "localizer": localizer.kernels},
                                "modes": summary})

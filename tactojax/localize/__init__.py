@@ -46,6 +46,7 @@ from tactojax.localize._localizer import Localizer as Localizer
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 from tactojax.localize._tracker import track_pose as track_pose
+from tactojax.localize._tracker import tracking_starts as tracking_starts
 from tactojax.localize._likelihood import LikelihoodSettings as LikelihoodSettings
 from tactojax.localize._likelihood import TouchEvidence as TouchEvidence
 from tactojax.localize._likelihood import log_likelihood as log_likelihood
@@ -120,6 +121,7 @@ __all__ = [
     "Tracker",
     "TrackingSettings",
     "track_pose",
+    "tracking_starts",
     "MapLibrary",
     "Method",
     "PoseEstimate",

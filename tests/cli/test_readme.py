@@ -44,11 +44,16 @@ SMALLER = {
 SMALLER_GRASPS = ["--episodes", "2", "--grasps-per-episode", "2", "--no-progress"]
 """For ``simulate --protocol grasps`` (its turns are the README's: the scissors fit only at 0 and 180)."""
 
+SMALLER_SLIP = ["--sequences", "1", "--frames", "4", "--no-progress"]
+"""For ``simulate --protocol slip``."""
+
 
 def smaller(argv: list[str]) -> list[str]:
     """The flags appended to one README line."""
     if argv[0] == "simulate" and "grasps" in argv:
         return SMALLER_GRASPS
+    if argv[0] == "simulate" and "slip" in argv:
+        return SMALLER_SLIP
     return SMALLER.get(argv[0], [])
 
 SLOW = {

@@ -1,6 +1,7 @@
 """Tracking between touches: track_pose against the true pose of a synthetic surface, and the
 Tracker's bookkeeping (first touch re-localized, then followed; contact lost ends the track)."""
 
+import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.io import load_encoder
-from tactojax.localize import LocalizationMap, Localizer, Query, Tracker, TrackingSettings, track_pose
+from tactojax.localize import LocalizationMap, Localizer, Query, Tracker, TrackingSettings, track_pose, tracking_starts
 
 
 def test_track_pose_follows_a_small_slip_between_map_imprints(bumps_map, synthetic):
@@ -94,3 +95,41 @@ def test_tracker_starts_from_a_given_pose_and_checks_it(tracker):
         tracker.start("banana", T_true)
     with pytest.raises(ValueError, match="finite"):
         tracker.start(maps[0].object_id, jaxlie.SE3(jnp.full(7, jnp.nan)))
+
+
+def test_tracking_starts_are_the_previous_pose_the_prediction_and_in_plane_shifts():
+    T_previous = jaxlie.SE3.exp(jnp.array([1.0, -2.0, 3.0, 0.1, 0.2, -0.3]))
+    T_predicted = T_previous @ jaxlie.SE3.exp(jnp.array([0.3, 0.1, 0.0, 0.0, 0.0, 0.02]))
+    starts = tracking_starts(T_previous, T_predicted, 1.5)
+    np.testing.assert_allclose(np.asarray(starts.wxyz_xyz[0]), np.asarray(T_previous.wxyz_xyz), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(starts.wxyz_xyz[1]), np.asarray(T_predicted.wxyz_xyz), atol=1e-6)
+    # The shifts, seen from the prediction: +-1.5 mm along the sensor's own x and y, no turn.
+    relative = np.asarray(jax.vmap(lambda T: (T_predicted.inverse() @ jaxlie.SE3(T)).wxyz_xyz)(starts.wxyz_xyz[2:]))
+    np.testing.assert_allclose(relative[:, :4], np.tile([1.0, 0, 0, 0], (4, 1)), atol=1e-5)
+    np.testing.assert_allclose(relative[:, 4:], [[1.5, 0, 0], [-1.5, 0, 0], [0, 1.5, 0], [0, -1.5, 0]], atol=1e-4)
+    assert tracking_starts(T_previous, T_predicted, 0.0).wxyz_xyz.shape == (2, 7)
+
+
+def test_track_pose_predicts_with_the_last_motion(bumps_map, synthetic):
+    """A slide that carries on: the prediction (previous pose moved as over the last frame)
+    lands in ICP's basin where the previous pose alone is far."""
+    view = LocalizationMap.from_tactile_map(bumps_map)
+    T_true = synthetic.sensor_pose(1.7, -1.2, 4.0)
+    heightmap, mask = synthetic.render(synthetic.bumps, T_true)
+    query = Query(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask), feature=jnp.zeros(()),
+                  opening=jnp.float32(20.0))
+    T_previous = synthetic.sensor_pose(1.7 - 6.0, -1.2, 4.0)
+    motion = T_previous.inverse() @ synthetic.sensor_pose(1.7 + 0.3, -1.2, 4.0)  # lands 0.3 mm off
+    settings = TrackingSettings(search_mm=0.0)
+    estimate = track_pose(view, query, T_previous, motion, tracking=settings)
+    still = track_pose(view, query, T_previous, None, tracking=settings)
+    error = np.linalg.norm(np.asarray(estimate.T_object_sensor.translation() - T_true.translation()))
+    still_error = np.linalg.norm(np.asarray(still.T_object_sensor.translation() - T_true.translation()))
+    assert error < 0.1 < 1.0 < still_error
+
+
+def test_tracking_settings_reject_bad_search_and_touch_size():
+    with pytest.raises(ValueError, match="search_mm"):
+        TrackingSettings(search_mm=-1.0)
+    with pytest.raises(ValueError, match="min_relocalize_px"):
+        TrackingSettings(min_relocalize_px=-1)
