@@ -105,6 +105,8 @@ def main() -> None:
     parser.add_argument("--sequences", type=int, default=10)
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--seed", type=int, default=2026, help="slip test set seed (not tuned on)")
+    parser.add_argument("--search-mm", type=float, default=TrackingSettings().search_mm,
+                        help="TrackingSettings.search_mm: in-plane shift of the extra ICP starts (0: none)")
     parser.add_argument("--json", metavar="PATH")
     parser.add_argument("--figure", metavar="PATH", help="median error against the frame index (.png)")
     args = parser.parse_args()
@@ -124,7 +126,8 @@ def main() -> None:
     data = slip_sequences(work, args.object, protocol, args.seed)
     print(f"map: {len(tactile_map)} imprints; {args.sequences} slip sequences of {args.frames} frames")
 
-    tracker = Tracker([tactile_map], model, encoder, method=args.method)
+    tracker = Tracker([tactile_map], model, encoder, method=args.method,
+                      tracking=TrackingSettings(search_mm=args.search_mm))
     localizer = Localizer([tactile_map], model, encoder, method=args.method)
     print(f"compiled: tracker {tracker.compile_s:.1f} s ({tracker.kernels} kernels, both branches), "
           f"localizer {localizer.compile_s:.1f} s ({localizer.kernels} kernels)")
@@ -205,7 +208,7 @@ def main() -> None:
         print(f"figure: {args.figure}")
     if args.json:
         write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": encoder_name,
-                               "method": args.method, "sequences": args.sequences, "frames": args.frames,
+                               "method": args.method, "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
                                "seed": args.seed, "recompilations": counter.count,
                                "small_touch_fraction": float(small.mean()),
                                "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},

@@ -8,7 +8,8 @@ where the touch lands, facing the same way; no opening filter: the width between
 changes as the object slides, and the previous pose already says where to look) and skips the
 feature network and retrieval. ICP starts from the previous pose, from the pose predicted by
 the last frame's motion (a slide carries on), and from that prediction shifted by
-``TrackingSettings.search_mm`` in the gel plane; the fit with the lowest
+``TrackingSettings.search_mm`` in the gel plane, each for ``TrackingSettings.icp_iterations``
+steps (half a re-localization's: a frame's slip is small); the fit with the lowest
 :func:`~tactojax.localize.selection_cost` wins. The shifted starts matter on surfaces that do not
 pin the contact down in the plane (a flat blade, along a cylinder): there the residual is as good
 anywhere nearby, but the share of the touch the map covers is not.
@@ -37,6 +38,7 @@ runs), so a frame never recompiles and a re-localization reuses the frame's heig
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Sequence
@@ -76,7 +78,7 @@ class TrackingSettings:
     direction are registered against (the other side of a thin part is not the same surface)."""
     max_residual_mm: float = 0.25
     """The track is lost when the tracked fit's robust residual RMS exceeds this (the touch no
-    longer lies on the map's surface: 5x the shape model's 0.05 mm error on a real sensor) or
+    longer lies on the map's surface: 5x the shape model's 0.05 mm error on a real sensor).
     Chosen a priori, not tuned on a benchmark."""
     max_unsupported_frames: int = 30
     """Frames in a row the track may hold its pose because the map has nothing at it (fewer
@@ -96,6 +98,11 @@ class TrackingSettings:
     residual cannot tell where the contact lies, but the share of the touch the map covers can:
     a shifted start recovers a slide the residual alone does not see. A fifth of ICP's ~5 mm
     basin, chosen before measuring."""
+    icp_iterations: int = 5
+    """ICP iterations of a tracked frame (a re-localization keeps ``IcpSettings.iterations``).
+    Between frames the object moves by at most a fraction of a millimetre and a degree, which
+    ICP closes in a few steps; more only slide further along a face the touch does not pin
+    down, at a cost that grows with the starts."""
     degraded_mm: float = 0.25
     """A re-localization replaces a lost track only if its cost
     (:func:`~tactojax.localize.selection_cost`: residual plus 1 mm x the unmatched fraction)
@@ -110,6 +117,8 @@ class TrackingSettings:
             raise ValueError(f"max_facing_deg must lie in (0, 180], got {self.max_facing_deg}")
         if self.min_relocalize_px < 0:
             raise ValueError(f"min_relocalize_px must be >= 0, got {self.min_relocalize_px}")
+        if self.icp_iterations < 1:
+            raise ValueError(f"icp_iterations must be >= 1, got {self.icp_iterations}")
         if self.search_mm < 0:
             raise ValueError(f"search_mm must be >= 0, got {self.search_mm}")
         if self.degraded_mm < 0 or self.max_residual_mm <= 0:
@@ -167,7 +176,8 @@ def track_pose(
         T_previous: the previous frame's sensor pose in the object frame, mm.
         motion: the sensor's motion over the last frame, in its own frame
             (``T_before.inverse() @ T_previous``); None: standing still.
-        tracking, settings: tracking and ICP parameters.
+        tracking, settings: tracking and ICP parameters (``tracking.icp_iterations`` replaces
+            ``settings.iterations``).
         points_per_query: contact points drawn from the touch.
 
     Returns:
@@ -181,7 +191,8 @@ def track_pose(
                                            max_facing_deg=tracking.max_facing_deg)
     starts = tracking_starts(T_previous, T_predicted, tracking.search_mm)
     run = jax.vmap(icp, in_axes=(None, None, None, None, None, 0, None))
-    estimates = run(view, around, around_valid, points, points_valid, starts, settings)
+    estimates = run(view, around, around_valid, points, points_valid, starts,
+                    dataclasses.replace(settings, iterations=tracking.icp_iterations))
     matched = estimates.overlap * jnp.sum(points_valid) >= settings.min_correspondences
     best = jnp.argmin(jnp.where(matched, selection_cost(estimates), jnp.inf))
     estimate = jax.tree.map(lambda x: x[best], estimates)

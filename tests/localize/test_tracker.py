@@ -128,7 +128,9 @@ def test_track_pose_predicts_with_the_last_motion(bumps_map, synthetic):
     assert error < 0.1 < 1.0 < still_error
 
 
-def test_tracking_settings_reject_bad_search_and_touch_size():
+def test_tracking_settings_reject_bad_search_touch_size_and_iterations():
+    with pytest.raises(ValueError, match="icp_iterations"):
+        TrackingSettings(icp_iterations=0)
     with pytest.raises(ValueError, match="search_mm"):
         TrackingSettings(search_mm=-1.0)
     with pytest.raises(ValueError, match="min_relocalize_px"):
