@@ -28,7 +28,8 @@ from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
-from tactojax.io import open_dataset, read_grasps, resolve_encoder, resolve_shape_model, simulate_to_dataset
+from tactojax.io import (DEFAULT_ENCODER, open_dataset, read_grasps,
+                         resolve_encoder, resolve_shape_model, simulate_to_dataset)
 from tactojax.localize import LocalizationMap, Localizer, Query, localize
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
@@ -54,8 +55,7 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0",
-                        help="feature encoder (the CLI default; bundled:features-tactile is the fast one)")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--method", default="cti-icp-5")
     parser.add_argument("--frames", type=int, default=300, help="frames in the video (default 300)")
     parser.add_argument("--fps", type=float, default=30.0, help="the video's nominal frame rate")

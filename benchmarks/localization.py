@@ -33,7 +33,8 @@ from tqdm.auto import tqdm
 
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
-from tactojax.io import load_tactile_map, resolve_encoder, resolve_shape_model, simulate_to_dataset, read_grasps
+from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, resolve_encoder,
+                         resolve_shape_model, simulate_to_dataset, read_grasps)
 from tactojax.localize import (
     IcpSettings, LocalizationMap, closest_imprints, estimate_pose, localize, map_query, parse_method, query_points,
 )
@@ -98,8 +99,7 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/localization", help="simulated data cache")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0",
-                        help="feature encoder (the CLI default; bundled:features-tactile is the fast one)")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N (default 5)")
     parser.add_argument("--calls", type=int, default=1000, help="timed localizations (default 1000)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries for accuracy")

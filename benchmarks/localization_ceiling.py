@@ -28,7 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from tactojax.features import encode_images
-from tactojax.io import load_tactile_map, resolve_encoder
+from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder
 from tactojax.localize import (
     LocalizationMap, SearchSettings, closest_imprints, cloud_moments, cloud_rmse, evaluate_localization, localize,
     map_query, moment_rmse, oracle_imprints, query_points, verification_score,
@@ -126,7 +126,7 @@ def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("maps", nargs="+", help="saved maps (.npz)")
-    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0", help="for maps without features")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="for maps without features (default: the CLI's)")
     parser.add_argument("--n", type=int, default=5, help="N of cti-search-N (default 5)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries per map (default 200)")
     parser.add_argument("--json", metavar="PATH")

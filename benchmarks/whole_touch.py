@@ -36,7 +36,7 @@ from tqdm.auto import tqdm
 from tactojax._compilation import CompilationCounter, kernel_count
 from tactojax.features import apply_encoder, encode_images
 from tactojax.geometry import sensor_pose
-from tactojax.io import open_dataset, read_grasps, resolve_encoder, resolve_shape_model
+from tactojax.io import DEFAULT_ENCODER, open_dataset, read_grasps, resolve_encoder, resolve_shape_model
 from tactojax.localize import IcpSettings, LocalizationMap, Localizer, MapLibrary, Query, identify, localize
 from tactojax.localize._methods import MAX_OPENING_DIFFERENCE_MM, POINTS_PER_QUERY
 from tactojax.mapping import build_tactile_map, observed_contact
@@ -87,7 +87,7 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache (shared with live.py)")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default="imagenet:efficientnet-lite0")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N")
     parser.add_argument("--touches", type=int, default=200, help="touches through each pipeline")
     parser.add_argument("--repeats", type=int, default=200, help="calls per stage timing")

