@@ -21,8 +21,8 @@ from pathlib import Path
 import jax
 
 from tactojax.cli._map import DEFAULT_MODEL
-from tactojax.io import DEFAULT_ENCODER
 from tactojax.cli._table import format_table, write_json
+from tactojax.io import DEFAULT_ENCODER
 
 DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")
 DEMO_METHODS = ("random", "cti", "cti-icp-1", "cti-icp-5")
