@@ -113,7 +113,7 @@ def main() -> None:
     parser.add_argument("--object", default="scissors")
     parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache (shared with live.py)")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default=None, help="feature encoder (default: the CLI's)")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--method", default="cti-icp-5", help="localization method when (re-)localizing")
     parser.add_argument("--sequences", type=int, default=10)
     parser.add_argument("--frames", type=int, default=200)
@@ -124,12 +124,11 @@ def main() -> None:
     parser.add_argument("--figure", metavar="PATH", help="median error against the frame index (.png)")
     args = parser.parse_args()
 
-    encoder_name = args.encoder or DEFAULT_ENCODER
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    model, encoder = resolve_shape_model(args.model), resolve_encoder(encoder_name)
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}; {len(os.sched_getaffinity(0))} usable cores; "
-          f"encoder {encoder_name}")
+          f"encoder {args.encoder}")
     grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
     tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                                     args.object, T_world_object=grasps["T_world_object"])
@@ -224,7 +223,7 @@ def main() -> None:
         figure.savefig(args.figure, dpi=120)
         print(f"figure: {args.figure}")
     if args.json:
-        write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": encoder_name,
+        write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": args.encoder,
                                "method": args.method, "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
                                "seed": args.seed, "recompilations": counter.count,
                                "errors_up_to_symmetries": len(symmetries[1]),
