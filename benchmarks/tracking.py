@@ -7,6 +7,11 @@ up to 0.5 mm and 1 degree of slip per frame, 200 frames per sequence). Every fra
   localized from nothing, then followed, re-localized only when the fit degrades;
 - **tracking from the true start**: the same, with the track started at the true pose of frame
   0 (``Tracker.start``), which separates how well it follows from how well it starts;
+- **tracking from the fused belief**: the track started where a pose belief puts frame 0, as a
+  robot would before lifting the object: ``--belief-grasps`` earlier grasps of the object where
+  it stands (both fingers; a new-grasps episode at the sequence's object placement, simulated
+  with a seed of its own) and the sequence's first frame itself are fused by
+  :func:`tactojax.localize.update_belief`, the touches related by the kinematics;
 - **re-localizing every frame** (:class:`tactojax.localize.Localizer`).
 
 Reported per mode: position error of the sensor pose (mm) over all frames, over the frames
@@ -35,13 +40,15 @@ from tqdm.auto import tqdm
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
-from tactojax.io import (DEFAULT_ENCODER, open_dataset, read_grasps,
+from tactojax.io import (DEFAULT_ENCODER, load_test_episodes, open_dataset, read_grasps, read_test_grasps,
                          resolve_encoder, resolve_shape_model, simulate_to_dataset)
-from tactojax.localize import Localizer, Tracker, TrackingSettings
-from tactojax.mapping import build_tactile_map
+from tactojax.localize import (BeliefSettings, LocalizationMap, Localizer, Tracker, TrackingSettings,
+                               build_surface_views, empty_belief, touch_evidence, update_belief)
+from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
-from tactojax.simulate import MappingProtocol, SlipProtocol
+from tactojax.shape import predict
+from tactojax.simulate import GraspsProtocol, MappingProtocol, SlipProtocol
 
 try:  # run as ``python benchmarks/tracking.py`` or as a module
     from benchmarks._common import format_table, machine_info, write_json
@@ -50,7 +57,7 @@ except ImportError:
     from _common import format_table, machine_info, write_json
     from live import simulated
 
-MODES = ("tracking", "tracking from the true start", "re-localizing every frame")
+MODES = ("tracking", "tracking from the true start", "tracking from the fused belief", "re-localizing every frame")
 
 
 def slip_sequences(work: Path, name: str, protocol: SlipProtocol, seed: int) -> dict[str, np.ndarray]:
@@ -59,12 +66,82 @@ def slip_sequences(work: Path, name: str, protocol: SlipProtocol, seed: int) -> 
     if not (path / "manifest.json").exists():
         simulate_to_dataset(path, jax.random.key(seed), gelslim(scale=0.5), get_object(name), protocol)
     data = open_dataset(path).read(["image", "mask", "opening_mm", "T_world_gripper", "T_world_object", "sequence",
-                                    "frame"])
+                                    "frame", "turn_rad"])
     data["contact_px"] = data.pop("mask").sum(axis=(1, 2))
     T_world_sensor = sensor_pose(jaxlie.SE3(jnp.asarray(data["T_world_gripper"])), jnp.asarray(data["opening_mm"]))
     T_object_sensor = jaxlie.SE3(jnp.asarray(data["T_world_object"])).inverse() @ T_world_sensor
     data["T_object_sensor"] = np.asarray(T_object_sensor.wxyz_xyz)
     return data
+
+
+def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_map, model, encoder, grasps: int,
+                  seed: int) -> tuple[dict[int, np.ndarray], dict[int, float]]:
+    """Per slip sequence, the pose of its frame 0 from a fused belief (see the module docstring).
+
+    New-grasps episodes (``grasps`` grasps x 2 fingers, seed ``seed``), simulated at each object
+    turn the sequences start from, give each sequence an episode at its object placement; its
+    touches and the sequence's first frame are fused, related by their sensor poses (the
+    kinematics: the object stands still until the sequence starts slipping).
+
+    Returns:
+        {sequence: (7,) wxyz_xyz of frame 0's sensor pose, object frame} and {sequence: the
+        belief's P(within 2 mm)}; a sequence without an episode at its placement has neither.
+    """
+    sequences = np.unique(data["sequence"])
+    first = {int(q): np.flatnonzero((data["sequence"] == q) & (data["frame"] == 0))[0] for q in sequences}
+    turn_of = {q: round(float(np.rad2deg(data["turn_rad"][row])), 3) for q, row in first.items()}
+    episodes_at = {}  # turn -> (episodes, their object placements)
+    for turn in sorted(set(turn_of.values())):
+        count = sum(t == turn for t in turn_of.values())
+        path = work / f"{name}-belief-grasps-turn{turn:g}-e{count}-g{grasps}-seed{seed}"
+        if not (path / "manifest.json").exists():
+            protocol = GraspsProtocol(episodes=count, grasps_per_episode=grasps, fingers=2, turns_deg=(turn,))
+            try:
+                simulate_to_dataset(path, jax.random.key(seed), gelslim(scale=0.5), get_object(name), protocol)
+            except ValueError as error:  # the new-grasps protocol finds no grasp at this placement
+                print(f"no belief start for the sequences at turn {turn:g} deg: {error}")
+                continue
+        episodes, _ = load_test_episodes(path, name, model, encoder, progress=False)
+        placement = read_test_grasps(path, ["T_world_object"], object_id=name)["T_world_object"][:: grasps * 2]
+        episodes_at[turn] = [episodes, placement, list(range(len(placement)))]
+    view = LocalizationMap.from_tactile_map(tactile_map)
+    views = build_surface_views(view)
+    settings = BeliefSettings()
+    update = jax.jit(update_belief, static_argnames=("settings",))
+    evidence_of = jax.jit(lambda h, m: touch_evidence(h, m, view.mm_per_px))
+
+    @jax.jit
+    def observe(image):
+        pixels = image.astype(jnp.float32) / 255.0
+        heightmap, mask = predict(model, pixels)
+        return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
+
+    starts, confidence = {}, {}
+    for sequence, row in first.items():
+        if turn_of[sequence] not in episodes_at:
+            continue
+        episodes, placement, unused = episodes_at[turn_of[sequence]]
+        e = unused.pop(0)
+        if not np.allclose(placement[e], data["T_world_object"][row], atol=1e-3):
+            raise RuntimeError(f"episode {e} does not stand where sequence {sequence} starts")
+        T_reference = jax.tree.map(lambda x: x[e, 0, 0], episodes.T_object_sensor)
+        evidence = evidence_of(episodes.heightmaps[e, 0, 0], episodes.masks[e, 0, 0])
+        belief = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0])
+        for g in range(grasps):
+            for f in range(2):
+                T_touch = jax.tree.map(lambda x: x[e, g, f], episodes.T_object_sensor)
+                belief = update(view, views, belief, evidence_of(episodes.heightmaps[e, g, f], episodes.masks[e, g, f]),
+                                episodes.features[e, g, f], episodes.openings[e, g], T_reference.inverse() @ T_touch,
+                                settings)
+        T_first = jaxlie.SE3(jnp.asarray(data["T_object_sensor"][row]))  # the kinematics, relative to the episode
+        T_reference_first = T_reference.inverse() @ T_first
+        heightmap, mask = observe(data["image"][row])
+        feature = encode_images(encoder, data["image"][row][None], progress=False)[0]
+        belief = update(view, views, belief, evidence_of(heightmap, mask), jnp.asarray(feature),
+                        jnp.float32(data["opening_mm"][row]), T_reference_first, settings)
+        starts[sequence] = np.asarray((belief.best @ T_reference_first).wxyz_xyz)
+        confidence[sequence] = float(belief.probability_within())
+    return starts, confidence
 
 
 def run_sequence(estimator, images, openings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -118,6 +195,8 @@ def main() -> None:
     parser.add_argument("--sequences", type=int, default=10)
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--seed", type=int, default=2026, help="slip test set seed (not tuned on)")
+    parser.add_argument("--belief-grasps", type=int, default=3,
+                        help="grasps (both fingers) fused before each sequence for the belief's start (default 3)")
     parser.add_argument("--search-mm", type=float, default=TrackingSettings().search_mm,
                         help="TrackingSettings.search_mm: in-plane shift of the extra ICP starts (0: none)")
     parser.add_argument("--json", metavar="PATH")
@@ -140,18 +219,21 @@ def main() -> None:
     symmetric = len(symmetries[1]) > 1
     print(f"map: {len(tactile_map)} imprints; {args.sequences} slip sequences of {args.frames} frames")
 
+    starts, start_confidence = belief_starts(work, args.object, data, tactile_map, model, encoder, args.belief_grasps,
+                                             args.seed + 1)
+    print(f"belief starts: {len(starts)} of {args.sequences} sequences have an episode at their placement")
     tracker = Tracker([tactile_map], model, encoder, method=args.method,
                       tracking=TrackingSettings(search_mm=args.search_mm))
     localizer = Localizer([tactile_map], model, encoder, method=args.method)
     print(f"compiled: tracker {tracker.compile_s:.1f} s ({tracker.kernels} kernels, both branches), "
           f"localizer {localizer.compile_s:.1f} s ({localizer.kernels} kernels)")
 
-    results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": []}
-               for mode in MODES}
+    results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": [],
+                      "sequence_index": []} for mode in MODES}
     contact_px = []  # per sequence, (F,) true contact pixels
     counter = CompilationCounter()
     with counter:
-        for sequence in tqdm(np.unique(data["sequence"]), desc="sequences", unit="sequence"):
+        for index, sequence in enumerate(tqdm(np.unique(data["sequence"]), desc="sequences", unit="sequence")):
             rows = np.flatnonzero(data["sequence"] == sequence)
             rows = rows[np.argsort(data["frame"][rows])]
             images, openings, truth = data["image"][rows], data["opening_mm"][rows], data["T_object_sensor"][rows]
@@ -163,17 +245,24 @@ def main() -> None:
                     tracker.reset()
                     if mode == "tracking from the true start":
                         tracker.start(args.object, jaxlie.SE3(jnp.asarray(truth[0], jnp.float32)))
+                    if mode == "tracking from the fused belief":
+                        if int(sequence) not in starts:
+                            continue
+                        tracker.start(args.object, jaxlie.SE3(jnp.asarray(starts[int(sequence)], jnp.float32)))
                     estimator = tracker
                 poses, latency, tracked, relocalized = run_sequence(estimator, images, openings)
                 position, drift = errors(poses, truth, symmetries)
                 for name, value in (("position_mm", position), ("drift_mm", drift), ("latency_s", latency),
-                                    ("tracked", tracked), ("relocalized", relocalized)):
+                                    ("tracked", tracked), ("relocalized", relocalized), ("sequence_index", index)):
                     results[mode][name].append(value)
 
-    small = np.stack(contact_px) < TrackingSettings().min_relocalize_px  # (S, F) touches too small to localize
+    all_small = np.stack(contact_px) < TrackingSettings().min_relocalize_px  # (S, F) touches too small to localize
     summary, rows = {}, []
     for mode, result in results.items():
-        position = np.stack(result["position_mm"])  # (S, F)
+        if not result["position_mm"]:
+            continue
+        position = np.stack(result["position_mm"])  # (S', F): the sequences the mode ran
+        small = all_small[result["sequence_index"]]
         latency, tracked = np.stack(result["latency_s"]), np.stack(result["tracked"])
         relocalized = np.stack(result["relocalized"])
         tracked_ms = 1e3 * float(np.median(latency[tracked])) if tracked.any() else None
@@ -189,13 +278,14 @@ def main() -> None:
             "tracked_latency_ms": tracked_ms,
             "rate_hz": float(latency.size / latency.sum()),
             "median_error_by_frame_mm": np.nanmedian(position, axis=0).tolist(),
+            "sequences": len(position),
         }
         summary[mode] = entry
-        rows.append([mode, entry["median_error_mm"], _cell(entry["median_error_larger_touches_mm"]),
+        rows.append([f"{mode} ({len(position)})" if len(position) < len(all_small) else mode, entry["median_error_mm"], _cell(entry["median_error_larger_touches_mm"]),
                      _cell(entry["median_error_small_touches_mm"]), entry["first_frame_error_mm"], entry["last_frame_error_mm"],
                      entry["end_drift_mm"], f"{100 * entry['relocalized_fraction']:.1f} %",
                      entry["median_latency_ms"], tracked_ms if tracked_ms is not None else "-", entry["rate_hz"]])
-    print(f"{100 * small.mean():.0f} % of the frames touch fewer than {TrackingSettings().min_relocalize_px} contact "
+    print(f"{100 * all_small.mean():.0f} % of the frames touch fewer than {TrackingSettings().min_relocalize_px} contact "
           f"pixels (median contact {int(np.median(np.stack(contact_px)))} px)")
     print(format_table(["mode", "median error mm", f"touches >= {TrackingSettings().min_relocalize_px} px", "smaller", "frame 0 mm", "last frame mm", "end drift mm",
                         "re-localized", "median ms", "tracked ms", "rate Hz"], rows))
@@ -210,7 +300,7 @@ def main() -> None:
         import matplotlib.pyplot as plt
 
         figure, axis = plt.subplots(figsize=(7, 4), constrained_layout=True)
-        for mode in MODES:
+        for mode in summary:
             position = np.stack(results[mode]["position_mm"])
             axis.plot(np.nanmedian(position, axis=0), label=mode)
         axis.set_xlabel("frame")
@@ -227,7 +317,9 @@ def main() -> None:
                                "method": args.method, "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
                                "seed": args.seed, "recompilations": counter.count,
                                "errors_up_to_symmetries": len(symmetries[1]),
-                               "small_touch_fraction": float(small.mean()),
+                               "small_touch_fraction": float(all_small.mean()),
+                               "belief_grasps": args.belief_grasps,
+                               "belief_start_p_within_2mm": start_confidence,
                                "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},
                                "kernels": {"tracker": tracker.kernels, "localizer": localizer.kernels},
                                "modes": summary})

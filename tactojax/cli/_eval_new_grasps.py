@@ -10,8 +10,7 @@ def run_new_grasps(args) -> int:
     import numpy as np
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
-    from tactojax.cli._test_set import load_test_episodes
-    from tactojax.io import resolve_shape_model
+    from tactojax.io import load_test_episodes, resolve_shape_model
     from tactojax.localize import (BeliefSettings, LocalizationMap, build_surface_views, calibration,
                                    evaluate_new_grasps, parse_method)
     from tactojax.viz import new_grasps_figure, save_png

@@ -48,6 +48,7 @@ from tactojax.io._shape import save_shape_model as save_shape_model
 from tactojax.io._shape import save_train_state as save_train_state
 from tactojax.io._shape import shape_model_metadata as shape_model_metadata
 from tactojax.io._touches import load_touches as load_touches
+from tactojax.io._test_grasps import load_test_episodes as load_test_episodes
 from tactojax.io._test_grasps import read_test_grasps as read_test_grasps
 from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
 from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
@@ -87,6 +88,7 @@ __all__ = [
     "export_ply",
     "load_tactile_map",
     "read_grasps",
+    "load_test_episodes",
     "read_test_grasps",
     "save_tactile_map",
     "tactile_map_metadata",

@@ -51,6 +51,10 @@ class BeliefSettings:
     """Retrieved imprints whose neighbourhoods are searched for a new touch."""
     grid: CandidateGrid = CandidateGrid()
     """Offsets tried around every source imprint."""
+    screen_points: int = 16
+    """Contact and no-contact points each that screen all ``sources x grid.size`` candidates."""
+    screened: int = 256
+    """Best screened candidates scored with all the touch's points."""
     new_hypotheses: int = 24
     """Best coarse candidates of a new touch that join the pool."""
     hypotheses: int = 16
@@ -192,28 +196,49 @@ def touch_log_likelihood(view: LocalizationMap, views: SurfaceViews, evidence: T
                           settings)
 
 
+def _first_points(evidence: TouchEvidence, count: int) -> TouchEvidence:
+    """The evidence's first ``count`` contact and no-contact points: a uniform draw of each,
+    as :func:`~tactojax.localize.touch_evidence` orders them (valid points first, at random)."""
+    return TouchEvidence(contact=evidence.contact[:count], contact_valid=evidence.contact_valid[:count],
+                         free=evidence.free[:count], free_valid=evidence.free_valid[:count])
+
+
 def candidates(view: LocalizationMap, views: SurfaceViews, evidence: TouchEvidence, feature: Float[Array, "F"],
                opening: Float[Array, ""], settings: BeliefSettings,
                exclude: int | Int[Array, ""] = -1) -> tuple[jaxlie.SE3, Float[Array, "C"]]:
     """Step 2: the best ``new_hypotheses`` candidate poses of one touch (object frame) and
-    their coarse log-likelihoods (-inf where retrieval found too few imprints)."""
+    their coarse log-likelihoods (-inf where retrieval found too few imprints).
+
+    Coarse to fine: every candidate of every source is first screened with a few of the
+    touch's points (``screen_points``, one depth alignment step); the ``screened`` best are
+    then aligned and scored with all of them, from their original offsets.
+    """
     feature = feature / jnp.maximum(jnp.linalg.norm(feature), 1e-12)
     sources, _, sources_valid = rank_imprints(
         view.features @ feature, view.openings, view.imprint_valid, opening, settings.sources,
         max_opening_difference_mm=settings.max_opening_difference_mm, exclude=exclude)
     offsets = settings.grid.offsets(valid_centroid(evidence.contact, evidence.contact_valid))
+    few = _first_points(evidence, settings.screen_points)
+    per_source = settings.grid.size
 
-    def around(source):
-        def one(T_source_sensor):
-            T_source_sensor = align_depth(views, source, T_source_sensor, evidence)
-            return log_likelihood(views, source, T_source_sensor, evidence, settings.coarse), T_source_sensor
-        scores, T_source_sensor = jax.vmap(one)(offsets)
-        return scores, _take(view.T_object_sensor, source) @ T_source_sensor
+    def screen(source, T_source_sensor):
+        T_source_sensor = align_depth(views, source, T_source_sensor, few, iterations=1)
+        return log_likelihood(views, source, T_source_sensor, few, settings.coarse)
 
-    scores, poses = jax.vmap(around)(sources)
-    scores = jnp.where(sources_valid[:, None], scores, -jnp.inf).reshape(-1)
+    screening = jax.vmap(lambda source: jax.vmap(lambda T: screen(source, T))(offsets))(sources)  # (sources, S)
+    screening = jnp.where(sources_valid[:, None], screening, -jnp.inf).reshape(-1)
+    kept_scores, kept = jax.lax.top_k(screening, min(settings.screened, screening.shape[0]))
+    source = sources[kept // per_source]
+
+    def score(source, T_source_sensor):
+        T_source_sensor = align_depth(views, source, T_source_sensor, evidence)
+        return (log_likelihood(views, source, T_source_sensor, evidence, settings.coarse),
+                _take(view.T_object_sensor, source) @ T_source_sensor)
+
+    scores, poses = jax.vmap(score)(source, _take(offsets, kept % per_source))
+    scores = jnp.where(jnp.isfinite(kept_scores), scores, -jnp.inf)
     best_scores, best = jax.lax.top_k(scores, settings.new_hypotheses)
-    return _take(jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), poses), best), best_scores
+    return _take(poses, best), best_scores
 
 
 def refine(view: LocalizationMap, views: SurfaceViews, belief: PoseBelief, T_object_reference: jaxlie.SE3,
@@ -222,17 +247,14 @@ def refine(view: LocalizationMap, views: SurfaceViews, belief: PoseBelief, T_obj
     n = settings.registration_neighbours
     T_touches = T_object_reference @ belief.T_reference_touch  # (T,)
     landing = jax.vmap(lambda T, e: nearest_view(view, T, e))(T_touches, belief.evidence)
-    candidates_ = views.neighbours[landing, :n].reshape(-1)
-    candidates_valid = (views.neighbours_valid[landing, :n] & belief.touch_valid[:, None]).reshape(-1)
     used = settings.registration_points
+    # Every touch's points against the n imprints around where that touch lands.
+    candidates_ = jnp.repeat(views.neighbours[landing, :n], used, axis=0)  # (T * used, n)
+    candidates_valid = jnp.repeat(views.neighbours_valid[landing, :n] & belief.touch_valid[:, None], used, axis=0)
     points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact[:, :used])
     points_valid = belief.evidence.contact_valid[:, :used] & belief.touch_valid[:, None]
-    slots, count = points_valid.shape
-    touch_of_point = jnp.repeat(jnp.arange(slots), count)
-    touch_of_candidate = jnp.repeat(jnp.arange(slots), n)
-    pair_valid = touch_of_point[:, None] == touch_of_candidate[None, :]
     estimate = icp(view, candidates_, candidates_valid, points.reshape(-1, 3), points_valid.reshape(-1),
-                   T_object_reference, settings.icp, pair_valid=pair_valid)
+                   T_object_reference, settings.icp)
     return estimate.T_object_sensor
 
 

@@ -147,8 +147,8 @@ class Correspondences:
     """A match exists: in contact in some candidate and within the maximum distance."""
 
 
-def candidate_poses(view: LocalizationMap, candidates: Int[Array, "N"]) -> jaxlie.SE3:
-    """(N,) object -> sensor transforms of the candidate imprints."""
+def candidate_poses(view: LocalizationMap, candidates: Int[Array, "*batch"]) -> jaxlie.SE3:
+    """(*batch,) object -> sensor transforms of the candidate imprints."""
     return jax.tree.map(lambda x: x[candidates], view.T_object_sensor).inverse()
 
 
@@ -159,65 +159,71 @@ def candidate_surfaces(view: LocalizationMap, candidates: Int[Array, "N"]) -> Fl
 
 def find_correspondences(
     view: LocalizationMap,
-    candidates: Int[Array, "N"],
-    candidate_valid: Bool[Array, "N"],
+    candidates: Int[Array, "N"] | Int[Array, "P N"],
+    candidate_valid: Bool[Array, "N"] | Bool[Array, "P N"],
     points_object: Float[Array, "P 3"],
     points_valid: Bool[Array, "P"],
     max_distance_mm: float,
     *,
     T_sensor_candidate: jaxlie.SE3 | None = None,
     surfaces: Float[Array, "N H W"] | None = None,
-    pair_valid: Bool[Array, "P N"] | None = None,
 ) -> Correspondences:
     """Match every point to the candidate imprint whose surface is nearest (point-to-plane).
 
-    Each point is projected into each candidate's heightmap; among the candidates where it
-    falls in contact with ``|residual| <= max_distance_mm``, the one with the smallest
+    Each point is projected into each of its candidates' heightmaps; among the candidates where
+    it falls in contact with ``|residual| <= max_distance_mm``, the one with the smallest
     ``|residual|`` wins.
 
     Args:
         view: the map.
-        candidates: (N,) imprint indices (e.g. the N most similar to the query).
-        candidate_valid: (N,) which candidates are real.
+        candidates: (N,) imprint indices every point may match (e.g. the N most similar to the
+            query), or (P, N): each point its own (e.g. the points of several touches, each
+            against the imprints around where it lands).
+        candidate_valid: which candidates are real, shaped as ``candidates``.
         points_object: (P, 3) query points placed in the object frame, mm.
         points_valid: (P,) which query points are real.
         max_distance_mm: correspondences farther than this are rejected, mm.
-        T_sensor_candidate: (N,) inverted candidate poses, if already computed.
-        surfaces: :func:`candidate_surfaces`, if already computed (cheaper lookups; without
-            them the points are looked up in the map's own heightmaps and masks).
-        pair_valid: (P, N) which candidates each point may match (e.g. only those facing the
-            same way as the touch it came from); default: all.
+        T_sensor_candidate: :func:`candidate_poses` of ``candidates``, if already computed.
+        surfaces: :func:`candidate_surfaces` of (N,) shared candidates, if already computed
+            (cheaper lookups; without them the points are looked up in the map's own
+            heightmaps and masks).
 
     Returns:
-        :class:`Correspondences` of the P points.
+        :class:`Correspondences` of the P points (``candidate`` indexes the point's N candidates).
     """
+    per_point = candidates.ndim == 2
     if T_sensor_candidate is None:
         T_sensor_candidate = candidate_poses(view, candidates)
+    if surfaces is not None and per_point:
+        raise ValueError("surfaces are for candidates shared by all points, not per-point candidates")
     # (P, N) sensor-frame points: rotate and translate with explicit matrices.
-    rotation = T_sensor_candidate.rotation().as_matrix()  # (N, 3, 3)
-    p_sensor = matvec(rotation, points_object[:, None]) + T_sensor_candidate.translation()
+    rotation = T_sensor_candidate.rotation().as_matrix()  # (N, 3, 3) or (P, N, 3, 3)
+    translation = T_sensor_candidate.translation()
+    p_sensor = matvec(rotation, points_object[:, None]) + translation
     if surfaces is None:
         heightmaps, masks, imprint = view.heightmaps, view.masks, candidates
     else:
         heightmaps, masks, imprint = surfaces, None, jnp.arange(candidates.shape[0])
-    imprint = jnp.broadcast_to(imprint[None, :], p_sensor.shape[:2])
+    imprint = jnp.broadcast_to(imprint, p_sensor.shape[:2])
     height, slope, in_contact = surface_lookup(heightmaps, masks, imprint, p_sensor, view.mm_per_px)
     residual = (p_sensor[..., 2] + height) * -jax.lax.rsqrt(1.0 + jnp.sum(slope**2, axis=-1))
-    ok = (in_contact & candidate_valid[None, :] & points_valid[:, None]
+    ok = (in_contact & jnp.broadcast_to(candidate_valid, in_contact.shape) & points_valid[:, None]
           & (jnp.abs(residual) <= max_distance_mm))
-    if pair_valid is not None:
-        ok = ok & pair_valid
     best = jnp.argmin(jnp.where(ok, jnp.abs(residual), jnp.inf), axis=1)
-    take = lambda x: jnp.take_along_axis(x, best[:, None, None], axis=1)[:, 0]  # noqa: E731
+    take = lambda x: jnp.take_along_axis(x, best.reshape(-1, *[1] * (x.ndim - 1)), axis=1)[:, 0]  # noqa: E731
     p_best, slope_best = take(p_sensor), take(slope)
-    height_best = jnp.take_along_axis(height, best[:, None], axis=1)[:, 0]
+    height_best = take(height)
     normal = _normal_from_slope(slope_best)
     target = jnp.concatenate([p_best[:, :2], -height_best[:, None]], axis=-1)
     # Back to the object frame: R^T (x - t).
-    inverse_best, translation_best = jnp.swapaxes(rotation, -1, -2)[best], T_sensor_candidate.translation()[best]
+    if per_point:
+        rotation_best, translation_best = take(rotation), take(translation)
+    else:
+        rotation_best, translation_best = rotation[best], translation[best]
+    inverse_best = jnp.swapaxes(rotation_best, -1, -2)
     target_object = matvec(inverse_best, target - translation_best)
     normal_object = matvec(inverse_best, normal)
-    return Correspondences(candidate=best, residual=jnp.take_along_axis(residual, best[:, None], axis=1)[:, 0],
+    return Correspondences(candidate=best, residual=take(residual),
                            target=target_object, normal=normal_object, valid=jnp.any(ok, axis=1))
 
 

@@ -115,8 +115,8 @@ def _exp(delta: Float[Array, "6"]) -> tuple[Float[Array, "3 3"], Float[Array, "3
 
 def fit_quality(
     view: LocalizationMap,
-    candidates: Int[Array, "N"],
-    candidate_valid: Bool[Array, "N"],
+    candidates: Int[Array, "N"] | Int[Array, "P N"],
+    candidate_valid: Bool[Array, "N"] | Bool[Array, "P N"],
     points: Float[Array, "P 3"],
     points_valid: Bool[Array, "P"],
     T_object_sensor: jaxlie.SE3,
@@ -138,33 +138,36 @@ def fit_quality(
 
 def icp(
     view: LocalizationMap,
-    candidates: Int[Array, "N"],
-    candidate_valid: Bool[Array, "N"],
+    candidates: Int[Array, "N"] | Int[Array, "P N"],
+    candidate_valid: Bool[Array, "N"] | Bool[Array, "P N"],
     points: Float[Array, "P 3"],
     points_valid: Bool[Array, "P"],
     T_start: jaxlie.SE3,
     settings: IcpSettings = IcpSettings(),
-    *,
-    pair_valid: Bool[Array, "P N"] | None = None,
 ) -> PoseEstimate:
     """Register query points to the union of N stored imprints, from a start pose.
 
     Args:
         view: the map.
-        candidates: (N,) indices of the imprints to register against.
-        candidate_valid: (N,) which of them are real.
+        candidates: (N,) indices of the imprints to register against, or (P, N): each point its
+            own (projective association only; e.g. the points of several touches, each against
+            the imprints around where it lands).
+        candidate_valid: which of them are real, shaped as ``candidates``.
         points: (P, 3) query contact points, query sensor frame, mm.
         points_valid: (P,) which points are real.
         T_start: initial sensor pose in the object frame.
         settings: ICP parameters (static).
-        pair_valid: (P, N) which candidates each point may match (projective association;
-            e.g. the points of several touches, each against the imprints facing its way).
 
     Returns:
         :class:`PoseEstimate` (``imprint_index`` -1: the caller knows where it started).
     """
+    per_point = candidates.ndim == 2
+    if per_point and settings.association == "nearest":
+        raise ValueError("per-point candidates need the projective association")
     T_sensor_candidate = candidate_poses(view, candidates)
-    surfaces = candidate_surfaces(view, candidates)
+    # Shared candidates: their surfaces copied once (one gather a lookup instead of two).
+    # Per-point ones are looked up in the map itself (a copy would be P x N heightmaps).
+    surfaces = None if per_point else candidate_surfaces(view, candidates)
     count = jnp.maximum(jnp.sum(points_valid), 1)
     centroid_sensor = valid_centroid(points, points_valid)
     spread = jnp.sqrt(jnp.sum(jnp.where(points_valid, jnp.sum((points - centroid_sensor) ** 2, -1), 0.0)) / count)
@@ -185,7 +188,7 @@ def icp(
         else:
             matches = find_correspondences(view, candidates, candidate_valid, moved, points_valid,
                                            settings.max_distance_mm, T_sensor_candidate=T_sensor_candidate,
-                                           surfaces=surfaces, pair_valid=pair_valid)
+                                           surfaces=surfaces)
         weight = robust_weights(matches.residual, matches.valid, settings)
         enough = jnp.sum(weight > 0) >= settings.min_correspondences
         center = matvec(rotation, centroid_sensor) + translation

@@ -165,3 +165,33 @@ def test_belief_never_holds_nan(bumps, synthetic, case):
     if case == "no contact":
         assert np.all(np.isneginf(np.asarray(belief.log_weights)))
         assert float(belief.probability_within()) == 0.0
+
+
+def test_screened_candidates_are_the_exhaustive_best(bumps, synthetic):
+    """Coarse to fine: screening with a quarter of the points keeps the best candidates that
+    scoring every candidate with all the points (a Python loop over sources and offsets) finds."""
+    import dataclasses
+
+    from tactojax.localize._belief import candidates
+    from tactojax.localize._correspondences import valid_centroid
+    from tactojax.localize._likelihood import align_depth, log_likelihood
+    from tactojax.localize._retrieval import rank_imprints
+
+    view, views = bumps
+    heightmap, mask = _touch(synthetic, synthetic.sensor_pose(2.2, -1.1, 6.0))
+    evidence = touch_evidence(heightmap, mask, view.mm_per_px)
+    feature = view.features[12]
+    settings = dataclasses.replace(SETTINGS, screened=24)  # of 4 sources x 27 offsets = 108
+    poses, scores = jax.jit(candidates, static_argnames=("settings",))(view, views, evidence, feature, jnp.float32(20.0),
+                                                                     settings)
+    sources, _, valid = rank_imprints(view.features @ (feature / jnp.linalg.norm(feature)), view.openings,
+                                      view.imprint_valid, jnp.float32(20.0), settings.sources)
+    offsets = settings.grid.offsets(valid_centroid(evidence.contact, evidence.contact_valid))
+    exhaustive = []
+    for source in np.asarray(sources)[np.asarray(valid)]:
+        for o in range(settings.grid.size):
+            T = align_depth(views, jnp.int32(source), jax.tree.map(lambda x: x[o], offsets), evidence)
+            exhaustive.append(float(log_likelihood(views, jnp.int32(source), T, evidence, settings.coarse)))
+    best = np.sort(exhaustive)[::-1][:settings.new_hypotheses]
+    np.testing.assert_allclose(np.asarray(scores), best, rtol=1e-4, atol=1e-3)
+    assert np.isfinite(np.asarray(poses.wxyz_xyz)).all()

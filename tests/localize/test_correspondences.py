@@ -98,3 +98,27 @@ def test_residual_is_the_distance_along_the_normal_on_a_plane(bumps_map):
     np.testing.assert_allclose(np.asarray(matches.residual), [-0.3, 0.2], atol=1e-5)
     np.testing.assert_allclose(np.asarray(T.inverse() @ matches.target)[:, 2], [-0.5, -0.5], atol=1e-5)
     assert isinstance(T, jaxlie.SE3)
+
+
+def test_per_point_candidates_match_each_row_shared(bumps_map):
+    """(P, N) candidates: every point is matched exactly as if its own row were shared by all."""
+    view = LocalizationMap.from_tactile_map(bumps_map)
+    rows = (jnp.array([6, 7, 11, 12]), jnp.array([12, 13, 17, 18]))
+    rows_valid = (jnp.array([True, True, False, True]), jnp.array([True, True, True, True]))
+    rng = np.random.default_rng(2)
+    points = np.asarray(bumps_map.points_object[12]) + rng.normal(0, 1, (128, 3)) * np.array([0.1, 0.1, 0.5])
+    points = jnp.asarray(points, jnp.float32)
+    points_valid = jnp.asarray(bumps_map.valid[12])
+    row_of_point = np.arange(128) % 2
+    per_point = jax.jit(find_correspondences, static_argnums=5)(
+        view, jnp.stack(rows)[row_of_point], jnp.stack(rows_valid)[row_of_point], points, points_valid, 1.0)
+    for row in range(2):
+        shared = find_correspondences(view, rows[row], rows_valid[row], points, points_valid, 1.0)
+        mine = row_of_point == row
+        np.testing.assert_array_equal(np.asarray(per_point.valid)[mine], np.asarray(shared.valid)[mine])
+        found = np.asarray(shared.valid) & mine
+        assert found.sum() > 20
+        np.testing.assert_array_equal(np.asarray(per_point.candidate)[found], np.asarray(shared.candidate)[found])
+        for field in ("residual", "target", "normal"):
+            np.testing.assert_allclose(np.asarray(getattr(per_point, field))[found],
+                                       np.asarray(getattr(shared, field))[found], atol=1e-5)

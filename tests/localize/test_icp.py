@@ -129,3 +129,17 @@ def test_positive_definite_solve_matches_numpy_with_its_derivatives():
         solve = jax.jit(lambda a, b: solve_positive_definite(0.5 * (a + a.T), b))
         np.testing.assert_allclose(np.asarray(solve(matrix, vector)), np.linalg.solve(matrix, vector), rtol=1e-9)
         check_grads(solve, (jnp.asarray(matrix), jnp.asarray(vector)), order=1, modes=["fwd", "rev"])
+
+
+def test_per_point_candidates_register_as_shared_ones(problem):
+    """Every point given the same candidate row: the same fit as shared candidates (which copy
+    the candidates' surfaces, where per-point ones look up the map itself)."""
+    view, T_true, points, valid = problem
+    start = _perturb(T_true, (0.8, -0.5, 0.2), (1.0, -1.0, 2.0))
+    settings = SETTINGS["gauss-newton"]
+    shared = _icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, settings)
+    rows = jnp.broadcast_to(CANDIDATES, (points.shape[0], 8))
+    per_point = _icp(view, rows, jnp.ones(rows.shape, bool), points, valid, start, settings)
+    assert float(cloud_rmse(points, valid, shared.T_object_sensor, per_point.T_object_sensor)) < 1e-3
+    np.testing.assert_allclose(float(per_point.score), float(shared.score), atol=1e-5)
+    assert float(cloud_rmse(points, valid, T_true, per_point.T_object_sensor)) < 0.05

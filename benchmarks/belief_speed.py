@@ -1,0 +1,125 @@
+"""Speed of the pose belief's update on new grasps, beside CTI-ICP-5 in the same process.
+
+A robot that fuses touches calls :func:`tactojax.localize.update_belief` once per touch: the
+first touch of an object (the reference) and every further one (another grasp of the object
+where it stands, or the opposite finger of the same grasp). Issue 16 asks for at most 50 ms for
+a first touch and 20 ms for each further touch on 2 CPU cores. This script replays the episodes
+of a new-grasps test set touch by touch through one jitted update (fixed shapes: it compiles
+once) and times every call, interleaved call by call with CTI-ICP-5 (``localize_query``, the
+paper's method) on the same touch, so that the ratio means something on a busy machine.
+
+Reported: compile times, the median and 90th percentile of first and further touches, the
+CTI-ICP-5 median, and the time to build the map's surface views (once per map). Heightmaps and
+features are computed beforehand (they are the same for every method: see
+``benchmarks/whole_touch.py``).
+
+    python benchmarks/belief_speed.py scissors.npz --test data/test-scissors --json belief_speed.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+import jaxlie
+import numpy as np
+
+try:
+    from benchmarks._common import format_table, machine_info, write_json
+except ImportError:  # run as a script: benchmarks/ itself is on sys.path
+    from _common import format_table, machine_info, write_json
+
+from tactojax.features import encode_images
+from tactojax.io import DEFAULT_ENCODER, load_tactile_map, load_test_episodes, resolve_encoder, resolve_shape_model
+from tactojax.localize import (BeliefSettings, LocalizationMap, Query, build_surface_views, empty_belief,
+                               localize_query, parse_method, touch_evidence, update_belief)
+
+
+def _seconds(call) -> tuple[float, object]:
+    start = time.perf_counter()
+    out = jax.block_until_ready(call())
+    return time.perf_counter() - start, out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("map", help="the object's tactile map (.npz)")
+    parser.add_argument("--test", required=True, metavar="DIR", help="new-grasps test set of the map's object")
+    parser.add_argument("--fingers", type=int, default=2, help="fingers fused per grasp (default 2)")
+    parser.add_argument("--episodes", type=int, default=16, help="episodes replayed (default 16)")
+    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help=f"retrieval encoder (default {DEFAULT_ENCODER})")
+    parser.add_argument("--model", default="bundled:fast-gelslim-0.5", help="shape model")
+    parser.add_argument("--json", help="write the results here")
+    args = parser.parse_args()
+
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    tactile_map = load_tactile_map(args.map)
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=False))
+    view = LocalizationMap.from_tactile_map(tactile_map)
+    views_first_s, views = _seconds(lambda: build_surface_views(view))
+    views_s, _ = _seconds(lambda: build_surface_views(view))
+    episodes, fingers = load_test_episodes(args.test, tactile_map.object_id, model, encoder, progress=False)
+    if args.fingers > fingers:
+        raise SystemExit(f"--fingers {args.fingers}: the test set records {fingers} finger(s) per grasp")
+
+    settings = BeliefSettings()
+    update = jax.jit(update_belief, static_argnames=("settings",))
+    evidence_of = jax.jit(lambda h, m: touch_evidence(h, m, view.mm_per_px))
+    method = parse_method("cti-icp-5")
+    cti_icp = jax.jit(lambda query: localize_query(jax.random.key(0), view, query, method))
+
+    def touch(e, g, f):
+        take = lambda x: x[e, g, f]  # noqa: E731
+        query = Query(heightmap=take(episodes.heightmaps), mask=take(episodes.masks),
+                      feature=take(episodes.features), opening=episodes.openings[e, g])
+        return query, evidence_of(query.heightmap, query.mask), jax.tree.map(take, episodes.T_object_sensor)
+
+    query, evidence, _ = touch(0, 0, 0)
+    empty = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0])
+    compile_belief_s, _ = _seconds(lambda: update(view, views, empty, evidence, query.feature, query.opening,
+                                                 jaxlie.SE3.identity(), settings))
+    compile_cti_s, _ = _seconds(lambda: cti_icp(query))
+    first, further, reference = [], [], []
+    count = min(args.episodes, episodes.openings.shape[0])
+    for e in range(count):
+        belief = empty
+        T_reference = None
+        for g in range(episodes.openings.shape[1]):
+            for f in range(args.fingers):
+                query, evidence, T_object_sensor = touch(e, g, f)
+                T_reference = T_object_sensor if T_reference is None else T_reference
+                seconds, belief = _seconds(lambda: update(view, views, belief, evidence, query.feature, query.opening,
+                                                          T_reference.inverse() @ T_object_sensor, settings))
+                (first if g == f == 0 else further).append(seconds)
+                reference.append(_seconds(lambda: cti_icp(query))[0])
+
+    def ms(values, q=50):
+        return 1e3 * float(np.percentile(values, q))
+
+    rows = [["belief, first touch", len(first), ms(first), ms(first, 90), compile_belief_s],
+            ["belief, each further touch", len(further), ms(further), ms(further, 90), None],
+            ["CTI-ICP-5 (reference)", len(reference), ms(reference), ms(reference, 90), compile_cti_s]]
+    print(format_table(["step", "calls", "median ms", "p90 ms", "first call s (compile)"], rows))
+    print(f"surface views of {len(view)} imprints (once per map): {views_s:.2f} s "
+          f"(first call, compiling: {views_first_s:.2f} s)")
+    print(f"belief / CTI-ICP-5, median: first touch {ms(first) / ms(reference):.1f}x, "
+          f"further touches {ms(further) / ms(reference):.1f}x")
+    if args.json:
+        write_json(args.json, {
+            "map": args.map, "test": args.test, "fingers": args.fingers, "episodes": count,
+            "settings": {"sources": settings.sources, "candidates_per_source": settings.grid.size,
+                         "screen_points": settings.screen_points, "screened": settings.screened,
+                         "refine": settings.refine, "hypotheses": settings.hypotheses},
+            "first_touch_ms": {"median": ms(first), "p90": ms(first, 90), "calls": len(first)},
+            "further_touch_ms": {"median": ms(further), "p90": ms(further, 90), "calls": len(further)},
+            "cti_icp_5_ms": {"median": ms(reference), "p90": ms(reference, 90), "calls": len(reference)},
+            "compile_s": {"belief": compile_belief_s, "cti_icp_5": compile_cti_s},
+            "surface_views_s": views_s, "surface_views_first_call_s": views_first_s,
+            "median_further_over_reference": statistics.median(further) / statistics.median(reference),
+            "machine": machine_info()})
+
+
+if __name__ == "__main__":
+    main()
