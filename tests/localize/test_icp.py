@@ -129,3 +129,19 @@ def test_positive_definite_solve_matches_numpy_with_its_derivatives():
         solve = jax.jit(lambda a, b: solve_positive_definite(0.5 * (a + a.T), b))
         np.testing.assert_allclose(np.asarray(solve(matrix, vector)), np.linalg.solve(matrix, vector), rtol=1e-9)
         check_grads(solve, (jnp.asarray(matrix), jnp.asarray(vector)), order=1, modes=["fwd", "rev"])
+
+
+@pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
+def test_kth_smallest_equals_the_sort(size):
+    from tactojax.localize._icp import kth_smallest
+
+    rng = np.random.default_rng(size)
+    values = rng.normal(size=(6, size)).astype(np.float32)
+    values[1] = np.round(values[1], 1)  # ties
+    values[2, rng.integers(0, size, size // 3 + 1)] = np.inf  # invalid matches, as robust_weights marks them
+    values[3] = 0.0
+    ks = jnp.asarray(rng.integers(0, size, 6), jnp.int32)
+    expected = jnp.sort(jnp.asarray(values), axis=1)[jnp.arange(6), ks]
+    np.testing.assert_array_equal(jax.jit(jax.vmap(kth_smallest))(values, ks), expected)
+    for k in {0, size // 2, size - 1}:
+        assert kth_smallest(jnp.asarray(values[0]), jnp.int32(k)) == jnp.sort(values[0])[k]
