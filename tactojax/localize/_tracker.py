@@ -203,8 +203,8 @@ def track_pose(
 
 
 def _track_program(model: ShapeModel, coordinate_bias: jax.Array | None, encoder: Encoder, library: MapLibrary,
-                   views: tuple[LocalizationMap, ...], image: jax.Array, opening: jax.Array, T_previous: jaxlie.SE3,
-                   T_before: jaxlie.SE3,
+                   views: tuple[LocalizationMap, ...], image: jax.Array, opening: jax.Array,
+                   T_previous: jaxlie.SE3, T_before: jaxlie.SE3,
                    previous: jax.Array, follow: jax.Array, relocalize_now: jax.Array, *,
                    tracking: TrackingSettings, **options):
     """One frame: track from (previous map, T_previous, moving as from T_before) when ``follow``;

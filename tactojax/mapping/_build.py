@@ -60,7 +60,8 @@ def observed_contact(
     # a few loops, where its CPU ``reduce_window`` runs 2-3x slower (issue 17).
     height_px, width_px = mask.shape
     padded = jnp.pad(image - background, ((1, 1), (1, 1), (0, 0)))
-    total = functools.reduce(jnp.add, [padded[i:i + height_px, j:j + width_px] for i in range(3) for j in range(3)])
+    total = functools.reduce(jnp.add, [padded[i:i + height_px, j:j + width_px]
+                                       for i in range(3) for j in range(3)])
     change = jnp.abs(total / 9.0)
     strong = jnp.maximum(jnp.maximum(change[..., 0], change[..., 1]), change[..., 2]) > threshold
     size = 2 * int(round(radius_mm / mm_per_px)) + 1

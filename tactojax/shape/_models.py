@@ -76,7 +76,8 @@ class PixelDense(nn.Module):
 
     @nn.compact
     def __call__(self, x: Float[Array, "..."], *, channels_first: bool = False,
-                 pixel_bias: Float[Array, "out N"] | None = None, in_features: int | None = None) -> Float[Array, "..."]:
+                 pixel_bias: Float[Array, "out N"] | None = None,
+                 in_features: int | None = None) -> Float[Array, "..."]:
         """(..., in) -> (..., out), or with ``channels_first`` (in, N) -> (out, N).
 
         With ``pixel_bias`` (channels first only): ``x`` holds the first ``x.shape[0]`` of the
@@ -108,8 +109,8 @@ class SlopeNet(nn.Module):
         """(..., 9C) patches -> (..., 2) slopes, or with ``channels_first`` (9C, N) -> (2, N).
 
         With ``coordinate_bias`` (channels first): ``patches`` (9(C-2), N) hold only the colour
-        channels' rows, and ``coordinate_bias`` (:meth:`SlopePoissonNet.coordinate_bias`) the first layer's bias
-        plus what the pixel x/y channels add, the same at every call (issue 17).
+        channels' rows, and ``coordinate_bias`` (:meth:`SlopePoissonNet.coordinate_bias`) the
+        first layer's bias plus what the pixel x/y channels add, the same at every call (issue 17).
         """
         widths = [self.features] * (self.hidden_layers + 1) + [2]
         hidden = patches
@@ -149,7 +150,8 @@ class SlopePoissonNet(nn.Module):
         patches = patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
         return self._heights(self.slope_net(patches, channels_first=True).reshape(2, height_px, width_px))
 
-    def from_color(self, color: Float[Array, "H W C2"], coordinate_bias: Float[Array, "F N"]) -> Float[Array, "H W 2"]:
+    def from_color(self, color: Float[Array, "H W C2"],
+                   coordinate_bias: Float[Array, "F N"]) -> Float[Array, "H W 2"]:
         """:meth:`__call__` of the input whose colour channels are ``color`` (the pixel x/y
         channels left out: ``coordinate_bias`` of these weights holds their part, see
         :meth:`coordinate_bias`); the same output to float32 round-off, with 40 % fewer rows
