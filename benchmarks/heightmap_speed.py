@@ -18,6 +18,10 @@ mask + clamp   contact logit > 0, height >= 0               same
 predict        the whole jitted ``predict``                 the stages above in one jit
 =============  ===========================================  ==================================
 
+A third formulation, "now + bias", is ``predict`` given the model's ``coordinate_bias``,
+computed once as the live ``Localizer`` does: only the colour change is patched (27 rows instead
+of 45), and the first layer's bias and pixel x/y part is that per-pixel constant.
+
 Each stage is jitted on its own (its input is the previous stage's output); "predict" is the
 whole pipeline in one program, which is what a user calls. Reported per stage: compile time
 (``lower().compile()``), steady-state median and 10th percentile of ``--repeats`` calls (after
@@ -58,11 +62,14 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
 from tactojax._compilation import kernel_count
 from tactojax.io import resolve_shape_model
 from tactojax.sensor import add_sensor_noise, gelslim, render_image
-from tactojax.shape import build_network, integrate_gradient, predict, zero_background
+from tactojax.shape import build_network, coordinate_bias, integrate_gradient, predict, zero_background
 from tactojax.shape._models import MASK_SHARPNESS_MM, patch_planes
 from tactojax.shape._predict import network_input
 
 BUNDLED = "bundled:fast-gelslim-0.5"
+FORMULATIONS = ("before", "now", "now + bias")
+"""The replaced formulation (reference), ``predict``, and ``predict`` with the model's
+``coordinate_bias`` computed once (the live ``Localizer``'s path)."""
 STAGES = ["input", "patches", "slope MLP", "integration", "background", "mask + clamp", "predict"]
 
 
@@ -119,7 +126,29 @@ def stage_functions(model, formulation: str) -> list[tuple[str, Callable]]:
     def clamp(model, heightmap):
         return mask_and_clamp(heightmap, model.params["mask_threshold_mm"])
 
-    if formulation == "now":
+    if formulation == "now + bias":
+        bias = coordinate_bias(model)  # computed once per model, as the Localizer does
+
+        def inputs(model, image):
+            return model.color_gain * (image - model.background)
+
+        def patches(model, x):
+            return patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
+
+        def slope(model, p):
+            planes = network.apply({"params": model.params}, p, method=lambda net, p: net.slope_net(
+                p, channels_first=True, coordinate_bias=bias))
+            return jnp.moveaxis(planes.reshape(2, height_px, width_px), 0, -1)
+
+        def integrate(model, s):
+            return integrate_gradient(s, mm_per_px)
+
+        def background(model, h):
+            return zero_background(h, quantile=quantile)
+
+        def whole(model, image):
+            return predict(model, image, bias)
+    elif formulation == "now":
         def patches(model, x):
             return patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
 
@@ -210,21 +239,25 @@ def model_and_image(scale: float):
 
 
 def bench_size(scale: float, repeats: int) -> dict[str, Any]:
-    """Both formulations at one sensor size: per-stage timings, kernels, compile, agreement."""
+    """The formulations at one sensor size: per-stage timings, kernels, compile, agreement."""
     model, image, trained = model_and_image(scale)
-    stages = {f: compile_stages(model, image, f) for f in ("before", "now")}
+    stages = {f: compile_stages(model, image, f) for f in FORMULATIONS}
     programs = {(f, name): stage for f, by_name in stages.items() for name, stage in by_name.items()}
     timings = time_interleaved(programs, repeats)
-    (old_height, old_mask), (new_height, new_mask) = (stages[f]["predict"]["output"] for f in ("before", "now"))
+    old_height, old_mask = stages["before"]["predict"]["output"]
     rows = {name: {f: {"compile_s": stages[f][name]["compile_s"], "kernels": stages[f][name]["kernels"],
-                       **timings[(f, name)]} for f in ("before", "now")} for name in STAGES}
+                       **timings[(f, name)]} for f in FORMULATIONS} for name in STAGES}
+    agreement = {}
+    for f in FORMULATIONS[1:]:
+        new_height, new_mask = stages[f]["predict"]["output"]
+        agreement[f] = {"max_abs_height_difference_mm": float(jnp.max(jnp.abs(new_height - old_height))),
+                        "mask_agreement": float(jnp.mean(new_mask == old_mask))}
     return {
         "image": list(model.image_shape), "mm_per_px": model.mm_per_px, "sensor": model.sensor,
         "trained_at_this_size": trained,
         "stages": rows,
-        "max_abs_height_difference_mm": float(jnp.max(jnp.abs(new_height - old_height))),
         "max_height_mm": float(jnp.max(old_height)),
-        "mask_agreement": float(jnp.mean(new_mask == old_mask)),
+        "against_before": agreement,
     }
 
 
@@ -234,15 +267,16 @@ def print_size(result: dict[str, Any]) -> None:
     print(f"\n{height_px} x {width_px} px, {result['mm_per_px']} mm/px{note}")
     rows = []
     for name, row in result["stages"].items():
-        before, now = row["before"], row["now"]
-        rows.append([name, before["median_ms"], now["median_ms"], before["p10_ms"], now["p10_ms"],
-                     before["kernels"], now["kernels"], before["compile_s"], now["compile_s"],
-                     before["median_ms"] / now["median_ms"]])
-    print(format_table(["stage", "ms before", "ms now", "p10 before", "p10 now", "kernels before",
-                        "kernels now", "compile s before", "compile s now", "speed-up"], rows))
-    print(f"heightmaps differ by at most {result['max_abs_height_difference_mm']:.2e} mm "
-          f"(max height {result['max_height_mm']:.3f} mm); masks agree on "
-          f"{100 * result['mask_agreement']:.3f} % of pixels")
+        rows.append([name, *(row[f]["median_ms"] for f in FORMULATIONS), *(row[f]["p10_ms"] for f in FORMULATIONS),
+                     *(row[f]["kernels"] for f in FORMULATIONS),
+                     row["before"]["median_ms"] / row["now"]["median_ms"],
+                     row["now"]["median_ms"] / row["now + bias"]["median_ms"]])
+    print(format_table(["stage", *(f"ms {f}" for f in FORMULATIONS), *(f"p10 {f}" for f in FORMULATIONS),
+                        *(f"kernels {f}" for f in FORMULATIONS), "now / before", "+ bias / now"], rows))
+    for f, agreement in result["against_before"].items():
+        print(f"{f}: heightmaps differ from before by at most {agreement['max_abs_height_difference_mm']:.2e} mm "
+              f"(max height {result['max_height_mm']:.3f} mm); masks agree on "
+              f"{100 * agreement['mask_agreement']:.3f} % of pixels")
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -40,7 +40,7 @@ from tactojax.io import DEFAULT_ENCODER, open_dataset, read_grasps, resolve_enco
 from tactojax.localize import IcpSettings, LocalizationMap, Localizer, MapLibrary, Query, identify, localize
 from tactojax.localize._methods import MAX_OPENING_DIFFERENCE_MM, POINTS_PER_QUERY
 from tactojax.mapping import build_tactile_map, observed_contact
-from tactojax.shape import predict
+from tactojax.shape import coordinate_bias, predict
 from tactojax.simulate import MappingProtocol
 
 try:  # run as ``python benchmarks/whole_touch.py`` or as a module
@@ -118,9 +118,11 @@ def main() -> None:
     # tactojax, stage by stage: what each costs, in time, kernels and operations.
     view, library = LocalizationMap.from_tactile_map(tactile_map), MapLibrary.from_maps([tactile_map])
 
+    bias = coordinate_bias(model)  # once per model, as the Localizer does
+
     def heightmap_stage(image):
         pixels = image.astype(jnp.float32) / 255.0
-        heightmap, mask = predict(model, pixels)
+        heightmap, mask = predict(model, pixels, bias)
         return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
 
     def features_stage(image):

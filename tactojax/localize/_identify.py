@@ -16,7 +16,7 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
-from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM, cosine_similarities
+from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.mapping import TactileMap
 
 
@@ -25,6 +25,8 @@ class MapLibrary:
     """The features of M object maps, padded to a common K (fixed shapes)."""
 
     features: Float[Array, "M K F"]
+    """Unit-normalised once here (zero for padding), as :class:`LocalizationMap`'s, so that a
+    touch's cosine similarities are one product (issue 17)."""
     openings: Float[Array, "M K"]
     valid: Bool[Array, "M K"]
     """Real, valid imprints (False for padding)."""
@@ -45,8 +47,9 @@ class MapLibrary:
             x = np.asarray(x)
             return np.concatenate([x, np.full((size - len(x), *x.shape[1:]), fill, x.dtype)])
 
+        features = jnp.asarray(np.stack([pad(m.features, 0.0) for m in maps]), jnp.float32)
         return MapLibrary(
-            features=jnp.asarray(np.stack([pad(m.features, 0.0) for m in maps]), jnp.float32),
+            features=features / jnp.maximum(jnp.linalg.norm(features, axis=-1, keepdims=True), 1e-12),
             openings=jnp.asarray(np.stack([pad(m.openings, np.inf) for m in maps]), jnp.float32),
             valid=jnp.asarray(np.stack([pad(m.imprint_valid, False) for m in maps])),
             object_ids=tuple(m.object_id for m in maps))
@@ -74,7 +77,7 @@ def identify(
         every map (-inf where no imprint passes the opening filter).
     """
     exclude = jnp.full(library.valid.shape[0], -1) if exclude is None else exclude
-    similarities = jax.vmap(cosine_similarities, in_axes=(0, None))(library.features, query_feature)
+    similarities = library.features @ (query_feature / jnp.maximum(jnp.linalg.norm(query_feature), 1e-12))
     index = jnp.arange(library.valid.shape[1])
     eligible = (library.valid & (jnp.abs(library.openings - query_opening) < max_opening_difference_mm)
                 & (index[None, :] != exclude[:, None]))

@@ -35,7 +35,7 @@ from tactojax.localize._pose import PoseEstimate
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.localize._search import SearchSettings
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
-from tactojax.shape import ShapeModel, predict
+from tactojax.shape import ShapeModel, coordinate_bias, predict
 
 CONFIDENT_RESIDUAL_MM = 0.5
 """Fit residual at which :attr:`LiveEstimate.confidence` has dropped to 1/e of the overlap."""
@@ -88,11 +88,14 @@ class LiveEstimate:
                 "tracked": self.tracked}
 
 
-def observe(model: ShapeModel, image: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+def observe(model: ShapeModel, image: jax.Array,
+            coordinate_bias: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """A frame's pixels (H, W, 3) in [0, 1], heightmap (H, W) mm, contact mask (H, W) and
-    whether it shows a touch at all (:func:`tactojax.mapping.shows_contact`)."""
+    whether it shows a touch at all (:func:`tactojax.mapping.shows_contact`).
+
+    ``coordinate_bias``: :func:`tactojax.shape.coordinate_bias` of ``model``, computed once."""
     pixels = image.astype(jnp.float32) / 255.0
-    heightmap, mask = predict(model, pixels)
+    heightmap, mask = predict(model, pixels, coordinate_bias)
     mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
     return pixels, heightmap, mask, shows_contact(pixels, model.background, mask)
 
@@ -118,10 +121,10 @@ def relocalize(encoder: Encoder, library: MapLibrary, views: tuple[LocalizationM
     return chosen, best, estimate
 
 
-def _touch_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...],
-                   image: jax.Array, opening: jax.Array, **options):
+def _touch_program(model: ShapeModel, coordinate_bias: jax.Array | None, encoder: Encoder, library: MapLibrary,
+                   views: tuple[LocalizationMap, ...], image: jax.Array, opening: jax.Array, **options):
     """One touch, image (H, W, 3) uint8 and opening (mm) in; identity, pose and fit out."""
-    pixels, heightmap, mask, contact = observe(model, image)
+    pixels, heightmap, mask, contact = observe(model, image, coordinate_bias)
     chosen, best, estimate = relocalize(encoder, library, views, pixels, heightmap, mask, opening, **options)
     return chosen, best, contact, estimate
 
@@ -199,7 +202,8 @@ class Localizer:
         self.method = check_live_method(method)
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
-        self._operands = (model, encoder, MapLibrary.from_maps(maps),
+        # The shape model's per-pixel constant, computed once here rather than in every touch.
+        self._operands = (model, jax.jit(coordinate_bias)(model), encoder, MapLibrary.from_maps(maps),
                           tuple(LocalizationMap.from_tactile_map(m) for m in maps))
         program = functools.partial(
             _touch_program, method=self.method, settings=settings, search=search,

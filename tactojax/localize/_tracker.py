@@ -63,7 +63,7 @@ from tactojax.localize._register import selection_cost
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.localize._search import SearchSettings
 from tactojax.mapping import TactileMap
-from tactojax.shape import ShapeModel
+from tactojax.shape import ShapeModel, coordinate_bias
 
 
 @dataclass(frozen=True)
@@ -202,8 +202,9 @@ def track_pose(
                             imprint_index=jnp.where(found, around[0], -1).astype(jnp.int32))
 
 
-def _track_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...],
-                   image: jax.Array, opening: jax.Array, T_previous: jaxlie.SE3, T_before: jaxlie.SE3,
+def _track_program(model: ShapeModel, coordinate_bias: jax.Array | None, encoder: Encoder, library: MapLibrary,
+                   views: tuple[LocalizationMap, ...], image: jax.Array, opening: jax.Array,
+                   T_previous: jaxlie.SE3, T_before: jaxlie.SE3,
                    previous: jax.Array, follow: jax.Array, relocalize_now: jax.Array, *,
                    tracking: TrackingSettings, **options):
     """One frame: track from (previous map, T_previous, moving as from T_before) when ``follow``;
@@ -213,7 +214,7 @@ def _track_program(model: ShapeModel, encoder: Encoder, library: MapLibrary, vie
     Returns (map index, (M,) best similarities, contact, estimate, tracked, relocalized, whether
     the tracked fit had matches, whether the touch is large enough to re-localize from).
     """
-    pixels, heightmap, mask, contact = observe(model, image)
+    pixels, heightmap, mask, contact = observe(model, image, coordinate_bias)
     query = Query(heightmap=heightmap, mask=mask, feature=jnp.zeros(()), opening=opening)
     settings = options["settings"]
     motion = T_before.inverse() @ T_previous
@@ -277,7 +278,7 @@ class Tracker:
         self.tracking = tracking
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
-        self._operands = (model, encoder, MapLibrary.from_maps(maps),
+        self._operands = (model, jax.jit(coordinate_bias)(model), encoder, MapLibrary.from_maps(maps),
                           tuple(LocalizationMap.from_tactile_map(m) for m in maps))
         program = functools.partial(
             _track_program, tracking=tracking, method=self.method, settings=settings, search=search,

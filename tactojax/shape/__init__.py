@@ -27,6 +27,7 @@ from tactojax.shape._predict import LOOKUP as LOOKUP
 from tactojax.shape._robustness import robustness_study as robustness_study
 from tactojax.shape._predict import ShapeModel as ShapeModel
 from tactojax.shape._predict import check_image as check_image
+from tactojax.shape._predict import coordinate_bias as coordinate_bias
 from tactojax.shape._predict import init_shape_model as init_shape_model
 from tactojax.shape._predict import predict as predict
 from tactojax.shape._predict import predict_batch as predict_batch
@@ -54,6 +55,7 @@ __all__ = [
     "batch_heightmap_errors",
     "build_network",
     "check_image",
+    "coordinate_bias",
     "estimate_background",
     "evaluate_shape_model",
     "fit_lookup_model",

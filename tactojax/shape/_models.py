@@ -75,9 +75,16 @@ class PixelDense(nn.Module):
     features: int
 
     @nn.compact
-    def __call__(self, x: Float[Array, "..."], *, channels_first: bool = False) -> Float[Array, "..."]:
-        """(..., in) -> (..., out), or with ``channels_first`` (in, N) -> (out, N)."""
-        in_features = x.shape[0] if channels_first else x.shape[-1]
+    def __call__(self, x: Float[Array, "..."], *, channels_first: bool = False,
+                 pixel_bias: Float[Array, "out N"] | None = None,
+                 in_features: int | None = None) -> Float[Array, "..."]:
+        """(..., in) -> (..., out), or with ``channels_first`` (in, N) -> (out, N).
+
+        With ``pixel_bias`` (channels first only): ``x`` holds the first ``x.shape[0]`` of the
+        layer's ``in_features`` inputs, and ``pixel_bias`` (out, N) stands for the bias plus the
+        other inputs' contribution at each pixel (see :meth:`SlopePoissonNet.coordinate_bias`).
+        """
+        in_features = in_features or (x.shape[0] if channels_first else x.shape[-1])
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (in_features, self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
         if not channels_first:
@@ -85,6 +92,8 @@ class PixelDense(nn.Module):
         # The barrier keeps kernel^T a (tiny) array of its own: XLA would fold the transpose into
         # the product, which its CPU runtime then runs as a generic dot instead of handing it to
         # its matrix library, 20-25 % slower for the MLP of ``fast`` (issue 17).
+        if pixel_bias is not None:
+            return lax.optimization_barrier(kernel[:x.shape[0]].T) @ x + pixel_bias
         return lax.optimization_barrier(kernel.T) @ x + bias[:, None]
 
 
@@ -95,12 +104,23 @@ class SlopeNet(nn.Module):
     hidden_layers: int = 2
 
     @nn.compact
-    def __call__(self, patches: Float[Array, "..."], *, channels_first: bool = False) -> Float[Array, "..."]:
-        """(..., 9C) patches -> (..., 2) slopes, or with ``channels_first`` (9C, N) -> (2, N)."""
+    def __call__(self, patches: Float[Array, "..."], *, channels_first: bool = False,
+                 coordinate_bias: Float[Array, "F N"] | None = None) -> Float[Array, "..."]:
+        """(..., 9C) patches -> (..., 2) slopes, or with ``channels_first`` (9C, N) -> (2, N).
+
+        With ``coordinate_bias`` (channels first): ``patches`` (9(C-2), N) hold only the colour
+        channels' rows, and ``coordinate_bias`` (:meth:`SlopePoissonNet.coordinate_bias`) the
+        first layer's bias plus what the pixel x/y channels add, the same at every call (issue 17).
+        """
         widths = [self.features] * (self.hidden_layers + 1) + [2]
         hidden = patches
         for index, width in enumerate(widths):
-            hidden = PixelDense(width, name=f"Dense_{index}")(hidden, channels_first=channels_first)
+            if index == 0 and coordinate_bias is not None:
+                hidden = PixelDense(width, name="Dense_0")(
+                    hidden, channels_first=True, pixel_bias=coordinate_bias,
+                    in_features=patches.shape[0] + COORDINATE_PATCH_ROWS)
+            else:
+                hidden = PixelDense(width, name=f"Dense_{index}")(hidden, channels_first=channels_first)
             if index < len(widths) - 1:
                 hidden = nn.relu(hidden)
         return hidden
@@ -128,16 +148,57 @@ class SlopePoissonNet(nn.Module):
         # Channels first, pixels along the minor axis: the layout in which the CPU multiplies
         # all pixels by each layer fastest (issue 17).
         patches = patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
-        slope = self.slope_net(patches, channels_first=True).reshape(2, height_px, width_px)
+        return self._heights(self.slope_net(patches, channels_first=True).reshape(2, height_px, width_px))
+
+    def from_color(self, color: Float[Array, "H W C2"],
+                   coordinate_bias: Float[Array, "F N"]) -> Float[Array, "H W 2"]:
+        """:meth:`__call__` of the input whose colour channels are ``color`` (the pixel x/y
+        channels left out: ``coordinate_bias`` of these weights holds their part, see
+        :meth:`coordinate_bias`); the same output to float32 round-off, with 40 % fewer rows
+        in the first layer's product (issue 17)."""
+        height_px, width_px = color.shape[:2]
+        patches = patch_planes(jnp.moveaxis(color, -1, 0)).reshape(-1, height_px * width_px)
+        slope = self.slope_net(patches, channels_first=True, coordinate_bias=coordinate_bias)
+        return self._heights(slope.reshape(2, height_px, width_px))
+
+    def _heights(self, slope: Float[Array, "2 H W"]) -> Float[Array, "H W 2"]:
+        """Slope planes -> (heightmap, contact logit): integration, background, threshold."""
         heightmap = zero_background(
             integrate_gradient(jnp.moveaxis(slope, 0, -1), self.mm_per_px), quantile=self.background_quantile
         )
         mask_logit = (heightmap - self.mask_threshold_mm) / MASK_SHARPNESS_MM
         return jnp.stack([heightmap, mask_logit], axis=-1)
 
+    def coordinate_bias(self, height_px: int, width_px: int) -> Float[Array, "F N"]:
+        """The first slope layer's bias plus what the pixel x/y inputs add, per pixel: (F, H*W),
+        F the layer's width, pixels in row-major order.
+
+        The x/y channels are the same at every call, so their part of the first layer (18 of
+        its 9C inputs) is a constant plane of the weights alone: computed once per model
+        (:func:`tactojax.shape.coordinate_bias`), it leaves only the colour rows to multiply
+        per image (:meth:`from_color`).
+        """
+        coordinates = jnp.moveaxis(pixel_coordinates(height_px, width_px), -1, 0)
+        patches = patch_planes(coordinates).reshape(COORDINATE_PATCH_ROWS, height_px * width_px)
+        first = self.slope_net.variables["params"]["Dense_0"]
+        return first["kernel"][-COORDINATE_PATCH_ROWS:].T @ patches + first["bias"][:, None]
+
     def slope(self, patches: Float[Array, "... 9C"]) -> Float[Array, "... 2"]:
         """The slope of pixels given their 3x3 neighbourhoods (see :func:`pixel_patches`)."""
         return self.slope_net(patches)
+
+
+COORDINATE_PATCH_ROWS = 18
+"""Rows of the 3x3 patches that come from the pixel x/y channels (the last two of the input)."""
+
+
+def pixel_coordinates(height_px: int, width_px: int) -> Float[Array, "H W 2"]:
+    """Every pixel's x (along columns) and y (along rows) in [-1, 1]: the last two input
+    channels of every model (paper section IV)."""
+    rows = jnp.linspace(-1.0, 1.0, height_px)
+    cols = jnp.linspace(-1.0, 1.0, width_px)
+    y, x = jnp.meshgrid(rows, cols, indexing="ij")
+    return jnp.stack([x, y], axis=-1).astype(jnp.float32)
 
 
 MASK_SHARPNESS_MM = 0.01

@@ -10,7 +10,8 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from tactojax.shape._lookup import lookup_slope
-from tactojax.shape._models import MASK_SHARPNESS_MM, USES_BACKGROUND, build_network
+from tactojax.shape._models import (MASK_SHARPNESS_MM, USES_BACKGROUND, SlopePoissonNet, build_network,
+                                    pixel_coordinates)
 from tactojax.shape._poisson import integrate_gradient, zero_background
 
 DEFAULT_COLOR_GAIN = 1.0
@@ -82,18 +83,34 @@ def network_input(
         color = color_gain * (image - background)
     else:
         color = image
-    rows = jnp.linspace(-1.0, 1.0, height_px)
-    cols = jnp.linspace(-1.0, 1.0, width_px)
-    y, x = jnp.meshgrid(rows, cols, indexing="ij")
-    return jnp.concatenate([color, x[..., None], y[..., None]], axis=-1).astype(jnp.float32)
+    return jnp.concatenate([color, pixel_coordinates(height_px, width_px)], axis=-1).astype(jnp.float32)
+
+
+def coordinate_bias(model: ShapeModel) -> Float[Array, "F N"] | None:
+    """What a ``fast``/``tiny`` model's first slope layer adds at each pixel whatever the image:
+    its bias and the pixel x/y inputs' part (:meth:`SlopePoissonNet.coordinate_bias`).
+
+    Compute it once per model and pass it to :func:`predict` (as the live ``Localizer`` does):
+    the first layer then multiplies 27 colour rows per pixel instead of 45 (issue 17). Pass it
+    only with the weights it was computed from.
+
+    Returns:
+        (F, H*W), F the first layer's width; None for presets without a slope network.
+    """
+    network = build_network(model.preset, model.mm_per_px) if model.preset != LOOKUP else None
+    if not isinstance(network, SlopePoissonNet):
+        return None
+    return network.apply({"params": model.params}, *model.image_shape, method=SlopePoissonNet.coordinate_bias)
 
 
 def raw_prediction(
-    model: ShapeModel, image: Float[Array, "H W 3"], background: Float[Array, "H W 3"] | None = None
+    model: ShapeModel, image: Float[Array, "H W 3"], background: Float[Array, "H W 3"] | None = None,
+    *, coordinate_bias: Float[Array, "F N"] | None = None,
 ) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
     """Unclipped heightmap (mm) and contact logit, as training sees them.
 
-    ``background`` overrides the model's frame (e.g. one recaptured under new lighting).
+    ``background`` overrides the model's frame (e.g. one recaptured under new lighting);
+    ``coordinate_bias`` is :func:`coordinate_bias` of this model (same output to round-off).
     """
     background = model.background if background is None else background
     if model.preset == LOOKUP:
@@ -101,14 +118,18 @@ def raw_prediction(
         heightmap = zero_background(integrate_gradient(slope, model.mm_per_px))
         return heightmap, (heightmap - model.params["mask_threshold_mm"]) / MASK_SHARPNESS_MM
     network = build_network(model.preset, model.mm_per_px)
-    inputs = network_input(image, background, model.preset, model.color_gain)
-    output = network.apply({"params": model.params}, inputs)
+    if coordinate_bias is not None:
+        color = model.color_gain * (image - background)
+        output = network.apply({"params": model.params}, color, coordinate_bias, method=SlopePoissonNet.from_color)
+    else:
+        inputs = network_input(image, background, model.preset, model.color_gain)
+        output = network.apply({"params": model.params}, inputs)
     return output[..., 0], output[..., 1]
 
 
 @jax.jit
 def predict(
-    model: ShapeModel, image: Float[Array, "H W 3"]
+    model: ShapeModel, image: Float[Array, "H W 3"], coordinate_bias: Float[Array, "F N"] | None = None
 ) -> tuple[Float[Array, "H W"], Bool[Array, "H W"]]:
     """Contact heightmap and mask from one tactile image (paper section IV).
 
@@ -118,21 +139,23 @@ def predict(
     Args:
         model: a trained :class:`ShapeModel` for this sensor.
         image: (H, W, 3) RGB in [0, 1], the model's image size.
+        coordinate_bias: optional, :func:`coordinate_bias` of ``model``, computed once: the
+            same result to float32 round-off, faster (issue 17).
 
     Returns:
         (heightmap (H, W) indentation depth in mm, >= 0; mask (H, W) contact).
     """
-    heightmap, logit = raw_prediction(model, image)
+    heightmap, logit = raw_prediction(model, image, coordinate_bias=coordinate_bias)
     mask = logit > 0.0
     return jnp.maximum(heightmap, 0.0), mask
 
 
 @jax.jit
 def predict_batch(
-    model: ShapeModel, images: Float[Array, "N H W 3"]
+    model: ShapeModel, images: Float[Array, "N H W 3"], coordinate_bias: Float[Array, "F P"] | None = None
 ) -> tuple[Float[Array, "N H W"], Bool[Array, "N H W"]]:
     """:func:`predict` over a leading batch axis."""
-    return jax.vmap(predict, in_axes=(None, 0))(model, images)
+    return jax.vmap(predict, in_axes=(None, 0, None))(model, images, coordinate_bias)
 
 
 def check_image(model: ShapeModel, image) -> None:

@@ -143,3 +143,19 @@ def test_per_point_candidates_register_as_shared_ones(problem):
     assert float(cloud_rmse(points, valid, shared.T_object_sensor, per_point.T_object_sensor)) < 1e-3
     np.testing.assert_allclose(float(per_point.score), float(shared.score), atol=1e-5)
     assert float(cloud_rmse(points, valid, T_true, per_point.T_object_sensor)) < 0.05
+
+
+@pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
+def test_kth_smallest_equals_the_sort(size):
+    from tactojax.localize._icp import kth_smallest
+
+    rng = np.random.default_rng(size)
+    values = rng.normal(size=(6, size)).astype(np.float32)
+    values[1] = np.round(values[1], 1)  # ties
+    values[2, rng.integers(0, size, size // 3 + 1)] = np.inf  # invalid matches, as robust_weights marks them
+    values[3] = 0.0
+    ks = jnp.asarray(rng.integers(0, size, 6), jnp.int32)
+    expected = jnp.sort(jnp.asarray(values), axis=1)[jnp.arange(6), ks]
+    np.testing.assert_array_equal(jax.jit(jax.vmap(kth_smallest))(values, ks), expected)
+    for k in {0, size // 2, size - 1}:
+        assert kth_smallest(jnp.asarray(values[0]), jnp.int32(k)) == jnp.sort(values[0])[k]

@@ -27,3 +27,17 @@ def test_identify_respects_exclusion_and_the_opening_filter(bumps_map, ridges_ma
     assert float(held_out[0]) < 0.999
     _, none = identify(library, feature, jnp.float32(50.0))
     assert np.all(np.isneginf(np.asarray(none)))
+
+
+def test_identify_similarities_are_cosine_similarities(bumps_map, ridges_map):
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(0)
+    maps = [m.with_features(jnp.asarray(rng.normal(size=(len(m), 6)) * rng.uniform(0.1, 10.0, (len(m), 1)),
+                                        jnp.float32)) for m in (bumps_map, ridges_map)]
+    library = MapLibrary.from_maps(maps)
+    query = jnp.asarray(rng.normal(size=6) * 3.0, jnp.float32)
+    _, best = identify(library, query, jnp.float32(maps[0].openings[0]), max_opening_difference_mm=jnp.inf)
+    expected = [np.max(1.0 - cdist(np.asarray(m.features, np.float64)[np.asarray(m.imprint_valid)],
+                                   np.asarray(query, np.float64)[None], "cosine")) for m in maps]
+    np.testing.assert_allclose(best, expected, atol=1e-6)

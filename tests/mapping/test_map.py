@@ -1,5 +1,7 @@
 """TactileMap: built from predicted heightmaps, placed by the kinematics, saved, exported."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -141,6 +143,39 @@ def test_observed_contact_matches_a_scipy_reference():
     near = ndimage.maximum_filter(change > 0.05, size=9, mode="constant")  # 2 mm = 4 px each way
     np.testing.assert_array_equal(np.asarray(observed), mask & near)
     assert 0 < np.asarray(observed).sum() < mask.sum()
+
+
+def _reduce_window_observed_contact(image, background, mask, mm_per_px, threshold, radius_mm):
+    """``observed_contact`` as it was computed before issue 17: XLA's ``reduce_window``."""
+    change = jax.lax.reduce_window(image - background, 0.0, jax.lax.add, (3, 3, 1), (1, 1, 1), "SAME") / 9.0
+    strong = (jnp.max(jnp.abs(change), axis=-1) > threshold).astype(jnp.float32)
+    size = 2 * int(round(radius_mm / mm_per_px)) + 1
+    near = jax.lax.reduce_window(strong, 0.0, jax.lax.max, (size, 1), (1, 1), "SAME")
+    near = jax.lax.reduce_window(near, 0.0, jax.lax.max, (1, size), (1, 1), "SAME") > 0.0
+    return mask & near
+
+
+@pytest.mark.parametrize("mm_per_px, radius_mm", [(0.2, 3.0), (0.5, 2.0), (0.1, 0.05)])
+def test_observed_contact_equals_the_reduce_window_formulation(mm_per_px, radius_mm):
+    from tactojax.mapping import observed_contact
+
+    rng = np.random.default_rng(int(10 * radius_mm))
+    shape = (3, 40, 64, 3)
+    background = jnp.asarray(rng.uniform(0.3, 0.6, shape[1:]), jnp.float32)
+    # Camera noise and a few single-pixel spots whose 3x3 means straddle the threshold.
+    change = rng.normal(0, 0.01, shape)
+    for index in range(shape[0]):
+        rows, cols, channels = rng.integers(0, shape[1], 4), rng.integers(0, shape[2], 4), rng.integers(0, 3, 4)
+        change[index, rows, cols, channels] += rng.uniform(0.2, 0.9, 4)
+    images = jnp.clip(background + jnp.asarray(change, jnp.float32), 0.0, 1.0)
+    masks = jnp.asarray(rng.uniform(size=shape[:3]) > 0.3)
+    expected = jnp.stack([_reduce_window_observed_contact(i, background, m, mm_per_px, 0.05, radius_mm)
+                          for i, m in zip(images, masks)])
+    assert 0 < int(expected.sum()) < int(masks.sum())
+    observe = functools.partial(observed_contact, mm_per_px=mm_per_px, threshold=0.05, radius_mm=radius_mm)
+    np.testing.assert_array_equal(observe(images[0], background, masks[0]), expected[0])
+    np.testing.assert_array_equal(jax.jit(jax.vmap(observe, in_axes=(0, None, 0)))(images, background, masks),
+                                  expected)
 
 
 def test_shape_fit_clouds_hold_the_refined_contact_of_the_map(cylinder_map):

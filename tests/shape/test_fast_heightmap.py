@@ -15,10 +15,10 @@ from jax.scipy.fft import dctn, idctn
 
 from tactojax.io import resolve_shape_model
 from tactojax.sensor import add_sensor_noise, gelslim, render_image
-from tactojax.shape import (ShapeModel, build_network, init_shape_model, integrate_gradient, predict,
-                            predict_batch, zero_background)
+from tactojax.shape import (ShapeModel, build_network, coordinate_bias, init_shape_model, integrate_gradient,
+                            predict, predict_batch, zero_background)
 from tactojax.shape._models import MASK_SHARPNESS_MM, SlopePoissonNet, patch_planes, pixel_patches
-from tactojax.shape._predict import network_input
+from tactojax.shape._predict import network_input, raw_prediction
 from tactojax.shape._quantile import order_statistics, quantile
 
 
@@ -216,3 +216,33 @@ def test_bundled_model_matches_the_replaced_formulation():
     assert float(jnp.max(expected_height)) > 0.1
     np.testing.assert_allclose(height, expected_height, atol=1e-5)
     assert np.mean(np.asarray(mask) == np.asarray(expected_mask)) > 0.999
+
+
+@pytest.mark.parametrize("preset", ["fast", "tiny"])
+def test_coordinate_bias_is_the_first_layer_on_the_pixel_coordinates(preset):
+    background = np.random.default_rng(2).uniform(0.3, 0.6, (9, 13, 3)).astype(np.float32)
+    model = init_shape_model(jax.random.key(4), preset, background, 0.4)
+    first = model.params["slope_net"]["Dense_0"]
+    # Reference: the replaced patches of an input whose colour is zero, through nn.Dense.
+    coordinates_only = reference_patches(network_input(background, background, preset)).reshape(-1, 45)
+    expected = nn.Dense(first["bias"].shape[0]).apply({"params": first}, coordinates_only)
+    np.testing.assert_allclose(coordinate_bias(model).T, expected, atol=1e-6)
+    assert coordinate_bias(init_shape_model(jax.random.key(4), "paper", background, 0.4)) is None
+
+
+def test_predict_with_coordinate_bias_matches_the_replaced_formulation(small_fast_model):
+    model = small_fast_model
+    bias = jax.jit(coordinate_bias)(model)
+    images = jnp.stack([_press(np.asarray(model.background), depth, model.mm_per_px, seed)
+                        for seed, depth in enumerate([0.5, 1.2])])
+    heightmaps, masks = predict_batch(model, images, bias)
+    for k in range(2):
+        expected_height, expected_mask = jax.jit(reference_predict)(model, images[k])
+        assert float(jnp.max(expected_height)) > 0.05
+        np.testing.assert_allclose(heightmaps[k], expected_height, atol=1e-5)
+        height, mask = predict(model, images[k], bias)
+        np.testing.assert_allclose(height, expected_height, atol=1e-5)
+        np.testing.assert_array_equal(mask, expected_mask)
+        # Without jit: the module's own method.
+        raw_height, _ = raw_prediction(model, images[k], coordinate_bias=bias)
+        np.testing.assert_allclose(np.maximum(raw_height, 0.0), expected_height, atol=1e-5)
