@@ -187,11 +187,16 @@ def test_screened_candidates_are_the_exhaustive_best(bumps, synthetic):
     sources, _, valid = rank_imprints(view.features @ (feature / jnp.linalg.norm(feature)), view.openings,
                                       view.imprint_valid, jnp.float32(20.0), settings.sources)
     offsets = settings.grid.offsets(valid_centroid(evidence.contact, evidence.contact_valid))
-    exhaustive = []
-    for source in np.asarray(sources)[np.asarray(valid)]:
-        for o in range(settings.grid.size):
-            T = align_depth(views, jnp.int32(source), jax.tree.map(lambda x: x[o], offsets), evidence)
-            exhaustive.append(float(log_likelihood(views, jnp.int32(source), T, evidence, settings.coarse)))
+    pairs_source = jnp.repeat(sources[valid], settings.grid.size)
+    pairs_offset = jax.tree.map(lambda x: jnp.tile(x, (int(valid.sum()), 1)), offsets)
+
+    @jax.jit
+    @jax.vmap
+    def every_candidate(source, T):  # each with all the touch's points, no screening
+        return log_likelihood(views, source, align_depth(views, source, T, evidence), evidence, settings.coarse)
+
+    exhaustive = np.asarray(every_candidate(pairs_source, pairs_offset))
+    assert exhaustive.shape == (int(valid.sum()) * settings.grid.size,)
     best = np.sort(exhaustive)[::-1][:settings.new_hypotheses]
     np.testing.assert_allclose(np.asarray(scores), best, rtol=1e-4, atol=1e-3)
     assert np.isfinite(np.asarray(poses.wxyz_xyz)).all()
