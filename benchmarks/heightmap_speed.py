@@ -126,11 +126,13 @@ def stage_functions(model, formulation: str) -> list[tuple[str, Callable]]:
     def clamp(model, heightmap):
         return mask_and_clamp(heightmap, model.params["mask_threshold_mm"])
 
-    if formulation == "now + bias":
-        bias = coordinate_bias(model)  # computed once per model, as the Localizer does
-
-        def inputs(model, image):
-            return model.color_gain * (image - model.background)
+    if formulation in ("now", "now + bias"):
+        # "now + bias": the x/y channels' part of the first layer computed once per model, as
+        # the Localizer does; the input is then the colour change alone.
+        bias = coordinate_bias(model) if formulation == "now + bias" else None
+        if bias is not None:
+            def inputs(model, image):
+                return model.color_gain * (image - model.background)
 
         def patches(model, x):
             return patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
@@ -148,23 +150,6 @@ def stage_functions(model, formulation: str) -> list[tuple[str, Callable]]:
 
         def whole(model, image):
             return predict(model, image, bias)
-    elif formulation == "now":
-        def patches(model, x):
-            return patch_planes(jnp.moveaxis(x, -1, 0)).reshape(-1, height_px * width_px)
-
-        def slope(model, p):
-            planes = network.apply({"params": model.params}, p,
-                                   method=lambda net, p: net.slope_net(p, channels_first=True))
-            return jnp.moveaxis(planes.reshape(2, height_px, width_px), 0, -1)
-
-        def integrate(model, s):
-            return integrate_gradient(s, mm_per_px)
-
-        def background(model, h):
-            return zero_background(h, quantile=quantile)
-
-        def whole(model, image):
-            return predict(model, image)
     else:
         def patches(model, x):
             return old_patches(x)
