@@ -199,8 +199,7 @@ def touch_log_likelihood(view: LocalizationMap, views: SurfaceViews, evidence: T
 def _first_points(evidence: TouchEvidence, count: int) -> TouchEvidence:
     """The evidence's first ``count`` contact and no-contact points: a uniform draw of each,
     as :func:`~tactojax.localize.touch_evidence` orders them (valid points first, at random)."""
-    return TouchEvidence(contact=evidence.contact[:count], contact_valid=evidence.contact_valid[:count],
-                         free=evidence.free[:count], free_valid=evidence.free_valid[:count])
+    return jax.tree.map(lambda x: x[:count], evidence)
 
 
 def candidates(view: LocalizationMap, views: SurfaceViews, evidence: TouchEvidence, feature: Float[Array, "F"],
