@@ -11,7 +11,7 @@ def run_new_grasps(args) -> int:
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
     from tactojax.io import load_test_episodes, resolve_shape_model
-    from tactojax.localize import (BeliefSettings, LocalizationMap, build_surface_views, calibration,
+    from tactojax.localize import (BeliefSettings, LocalizationMap, build_map_surface, calibration,
                                    evaluate_new_grasps, parse_method)
     from tactojax.viz import new_grasps_figure, save_png
 
@@ -33,8 +33,8 @@ def run_new_grasps(args) -> int:
         symmetries = object_symmetries(tactile_map.object_id)
         symmetric = is_symmetric(symmetries)
         view = LocalizationMap.from_tactile_map(tactile_map)
-        views = build_surface_views(view) if "belief" in methods else None
-        results = evaluate_new_grasps(view, views, episodes, methods, fingers=args.fingers, symmetries=symmetries,
+        surface = build_map_surface(tactile_map) if "belief" in methods else None
+        results = evaluate_new_grasps(view, surface, episodes, methods, fingers=args.fingers, symmetries=symmetries,
                                       settings=BeliefSettings(), progress=True)
         summaries = [r.summary(symmetric=symmetric) for r in results]
         for r, s in zip(results, summaries):

@@ -10,6 +10,7 @@ weighed by a contact and no-contact likelihood, fused over touches and fingers).
 """
 
 from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
+from tactojax.localize._belief import BeliefCalibration as BeliefCalibration
 from tactojax.localize._belief import BeliefSettings as BeliefSettings
 from tactojax.localize._belief import PoseBelief as PoseBelief
 from tactojax.localize._belief import empty_belief as empty_belief
@@ -79,9 +80,9 @@ from tactojax.localize._search import search_and_register as search_and_register
 from tactojax.localize._search import verification_score as verification_score
 from tactojax.localize._solvers import SOLVERS as SOLVERS
 from tactojax.localize._solvers import pose_step as pose_step
-from tactojax.localize._views import SurfaceViews as SurfaceViews
-from tactojax.localize._views import ViewSettings as ViewSettings
-from tactojax.localize._views import build_surface_views as build_surface_views
+from tactojax.localize._surface import MapSurface as MapSurface
+from tactojax.localize._surface import SurfaceSettings as SurfaceSettings
+from tactojax.localize._surface import build_map_surface as build_map_surface
 
 __all__ = [
     "WITHIN_MM",
@@ -90,11 +91,12 @@ __all__ = [
     "EpisodeErrors",
     "LikelihoodSettings",
     "PoseBelief",
-    "SurfaceViews",
+    "MapSurface",
+    "SurfaceSettings",
+    "BeliefCalibration",
     "TestEpisodes",
     "TouchEvidence",
-    "ViewSettings",
-    "build_surface_views",
+    "build_map_surface",
     "calibration",
     "empty_belief",
     "evaluate_new_grasps",

@@ -7,14 +7,19 @@ One update, as a pipeline of small named steps (KISS-ICP style):
    of an object that stays put, or both fingers of one grasp;
 2. **candidates**: the touch's most similar stored imprints (retrieval, CTI's metric and
    opening filter) each spawn a dense grid of poses (:class:`CandidateGrid`), scored by the
-   touch's likelihood in the source imprint's local view with a coarse noise model; the best
-   become hypotheses for the reference touch's pose, pooled with the belief's own;
-3. **refine**: every pooled hypothesis is registered by ICP, all buffered touches at once (their
+   touch's geometric likelihood against the whole map's surface with a coarse noise model; the
+   best become hypotheses for the reference touch's pose, pooled with the belief's own (so a
+   mode an earlier touch missed can still appear);
+3. **weigh**: every pooled hypothesis scores the likelihood of all buffered touches
+   (:func:`touch_log_likelihood`: geometry, contact and no-contact, against the map's
+   signed-distance surface, plus appearance, the touch's embedding similarity to the stored
+   imprints where it lands), scaled by the belief's :class:`BeliefCalibration`;
+4. **refine**: the ``refine`` best are registered by ICP, all buffered touches at once (their
    points in the reference frame, each against the imprints around where it lands, facing its
-   way);
-4. **weigh**: each refined hypothesis scores the sum over buffered touches of their likelihoods
-   (contact and no-contact, :mod:`tactojax.localize._likelihood`) in the view nearest to where
-   the touch lands; duplicates are merged and the best ``hypotheses`` kept, normalised.
+   way), and weighed again; duplicates are merged and the best ``hypotheses`` kept, normalised.
+
+A symmetric object's copies are all kept (they are distinct poses that the touches cannot tell
+apart); :meth:`PoseBelief.probability_within` and :meth:`PoseBelief.modes` treat them as one.
 
 Everything has fixed shapes (``max_touches`` slots, ``hypotheses`` poses), so an update jits
 once per map size and settings, and a belief is a pytree that a control loop carries.
@@ -22,6 +27,7 @@ once per map size and settings, and a belief is a pytree that a control loop car
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import jax
@@ -36,11 +42,35 @@ from tactojax.localize._evaluate import cloud_moments, moment_rmse
 from tactojax.localize._icp import IcpSettings, icp
 from tactojax.localize._likelihood import LikelihoodSettings, TouchEvidence, align_depth, log_likelihood
 from tactojax.localize._map import LocalizationMap
-from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM, rank_imprints
-from tactojax.localize._views import SurfaceViews
+from tactojax.localize._retrieval import rank_imprints
+from tactojax.localize._surface import MapSurface
 
 WITHIN_MM = 2.0
 """The error a belief's confidence is about: P(the best pose is within this), mm."""
+
+
+@struct.dataclass
+class BeliefCalibration:
+    """The likelihood's scales, fit on the map's own touches (:func:`~tactojax.localize.fit_calibration`).
+
+    One touch's log-likelihood at a hypothesis is ``temperature * geometry + appearance *
+    similarity``; the sum over the ``n`` touches a belief holds is scaled by
+    ``n ** -fusion_exponent`` (touches of one object are not independent evidence: 0 would
+    multiply them as if they were, 1 would count them all as one).
+    """
+
+    temperature: Float[Array, ""]
+    """Scale of the geometric log-likelihood (an effective share of independent points)."""
+    appearance: Float[Array, ""]
+    """Weight of the cosine similarity between the touch's features and the stored imprints'."""
+    fusion_exponent: Float[Array, ""]
+    """How much the evidence of several touches is discounted (see above)."""
+
+    @staticmethod
+    def default() -> BeliefCalibration:
+        """Uncalibrated scales (the temperature a map gets before :func:`fit_calibration`)."""
+        return BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(0.0),
+                                 fusion_exponent=jnp.float32(0.0))
 
 
 @dataclass(frozen=True)
@@ -57,26 +87,30 @@ class BeliefSettings:
     """Best screened candidates scored with all the touch's points."""
     new_hypotheses: int = 24
     """Best coarse candidates of a new touch that join the pool."""
-    hypotheses: int = 16
-    """Hypotheses a belief keeps."""
+    hypotheses: int = 64
+    """Hypotheses a belief keeps (every symmetric copy and look-alike mode needs its own)."""
     max_touches: int = 6
     """Touches a belief remembers (e.g. 3 grasps x 2 fingers); older ones are forgotten."""
     refine: int = 16
     """Hypotheses of the pool (the best by likelihood) that ICP refines."""
-    registration_neighbours: int = 4
-    """Imprints around each touch's landing place that ICP registers it against."""
+    neighbours: int = 4
+    """Stored imprints around where a touch lands, facing its way: ICP registers it against
+    them, and its appearance is compared with theirs."""
     registration_points: int = 32
     """Contact points of each touch that ICP registers."""
     duplicate_mm: float = 0.5
-    """Hypotheses closer than this (the reference touch's cloud RMSE) are one."""
+    """Hypotheses closer than this (the touches' cloud RMSE, not up to symmetry) are one."""
     coarse: LikelihoodSettings = LikelihoodSettings(sigma_mm=0.5, margin_mm=0.5)
     """Noise model of the unrefined candidates (wider: they sit up to half a grid step off)."""
     likelihood: LikelihoodSettings = LikelihoodSettings()
     """Noise model of the refined hypotheses."""
     icp: IcpSettings = IcpSettings()
     """Refinement."""
-    max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM
-    """Retrieval's opening filter, mm."""
+    max_opening_difference_mm: float = math.inf
+    """Retrieval's opening filter, mm. None by default: the opening of a grasp changes by
+    several mm with a few degrees of yaw on a tapered or oblique section (the paper's 2 mm
+    filter drops the imprint nearest the truth on a third of the marker's new grasps), and the
+    geometry already holds what the opening says (both fingers' gel planes, in the kinematics)."""
 
 
 @struct.dataclass
@@ -93,10 +127,16 @@ class PoseBelief:
     """Normalised log-probabilities (-inf: an empty slot)."""
     evidence: TouchEvidence
     """(T,) the remembered touches (slot 0: the reference)."""
+    features: Float[Array, "T F"]
+    """Their unit retrieval features."""
     T_reference_touch: jaxlie.SE3
     """(T,) every remembered touch's sensor pose in the reference sensor frame, mm."""
     touch_valid: Bool[Array, "T"]
     """Which slots hold a touch."""
+    symmetries: jaxlie.SE3
+    """(S,) object-frame transforms that map the object onto itself (identity first)."""
+    calibration: BeliefCalibration
+    """The likelihood's scales."""
 
     @property
     def probabilities(self) -> Float[Array, "M"]:
@@ -106,11 +146,11 @@ class PoseBelief:
     @property
     def best(self) -> jaxlie.SE3:
         """The most likely pose of the reference sensor."""
-        return jax.tree.map(lambda x: x[jnp.argmax(self.log_weights)], self.T_object_reference)
+        return _take(self.T_object_reference, jnp.argmax(self.log_weights))
 
     def touch_pose(self, touch: int | Int[Array, ""] = 0) -> jaxlie.SE3:
         """The most likely pose of remembered touch ``touch``'s sensor in the object frame."""
-        return self.best @ jax.tree.map(lambda x: x[touch], self.T_reference_touch)
+        return self.best @ _take(self.T_reference_touch, touch)
 
     @property
     def touches(self) -> Int[Array, ""]:
@@ -118,82 +158,114 @@ class PoseBelief:
         return jnp.sum(self.touch_valid)
 
     def probability_within(self, threshold_mm: float = WITHIN_MM) -> Float[Array, ""]:
-        """P(the best pose is within ``threshold_mm`` of the truth), the cloud RMSE of the
-        remembered touches' contact points (the paper's metric), under the belief."""
-        distance = hypothesis_distances(self, self.best)
+        """P(the best pose is within ``threshold_mm`` of the truth, up to the object's
+        symmetry), the cloud RMSE of the remembered touches' contact points (the paper's
+        metric), under the belief."""
+        distance = hypothesis_distances(self, self.best, symmetric=True)
         return jnp.sum(jnp.where(distance <= threshold_mm, self.probabilities, 0.0))
 
     def modes(self, separation_mm: float = WITHIN_MM) -> tuple[Int[Array, "M"], Float[Array, "M"]]:
-        """Hypotheses grouped into modes: each joins the most likely hypothesis within
-        ``separation_mm`` of it. Returns (M,) the mode (a hypothesis index) of every hypothesis
-        and (M,) the probability of each mode at its own index (0 elsewhere)."""
+        """Hypotheses grouped into modes (symmetric copies in one): each joins the most likely
+        hypothesis within ``separation_mm`` of it. Returns (M,) the mode (a hypothesis index)
+        of every hypothesis and (M,) the probability of each mode at its own index (0 elsewhere)."""
         order = jnp.argsort(-self.log_weights)
-        poses = jax.tree.map(lambda x: x[order], self.T_object_reference)
-        distance = jax.vmap(lambda T: hypothesis_distances(self, T))(poses)[:, order]  # (M, M) sorted
+        poses = _take(self.T_object_reference, order)
+        distance = jax.vmap(lambda T: hypothesis_distances(self, T, symmetric=True))(poses)[:, order]  # sorted
         near = (distance <= separation_mm) & jnp.isfinite(self.log_weights[order])[None, :]
         # Each hypothesis joins the first (most likely) one near it.
-        mode_sorted = jnp.argmax(near, axis=1)
-        mode = order[mode_sorted]
+        mode = order[jnp.argmax(near, axis=1)]
         mode = jnp.zeros_like(order).at[order].set(mode)
         mass = jnp.zeros_like(self.log_weights).at[mode].add(self.probabilities)
         return mode, mass
 
 
-def hypothesis_distances(belief: PoseBelief, T_object_reference: jaxlie.SE3) -> Float[Array, "M"]:
+def hypothesis_distances(belief: PoseBelief, T_object_reference: jaxlie.SE3, *,
+                         symmetric: bool = False) -> Float[Array, "M"]:
     """(M,) RMSE (mm) between the remembered touches' contact points placed by every hypothesis
-    and by ``T_object_reference`` (the paper's metric over the fused touches)."""
+    and by ``T_object_reference`` (the paper's metric over the fused touches); with
+    ``symmetric``, by its closest symmetric copy."""
     points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact)  # reference frame
     valid = belief.evidence.contact_valid & belief.touch_valid[:, None]
     mean, covariance = cloud_moments(points.reshape(-1, 3), valid.reshape(-1))
-    return moment_rmse(mean, covariance, belief.T_object_reference, T_object_reference)
+    if not symmetric:
+        return moment_rmse(mean, covariance, belief.T_object_reference, T_object_reference)
+    copies = jax.vmap(lambda S: S @ T_object_reference)(belief.symmetries)  # (S,)
+    per_copy = jax.vmap(lambda T: moment_rmse(mean, covariance, belief.T_object_reference, T))(copies)  # (S, M)
+    return jnp.min(per_copy, axis=0)
 
 
-def empty_belief(settings: BeliefSettings, contact_points: int, free_points: int) -> PoseBelief:
-    """A belief with no touch (every hypothesis slot empty)."""
+def empty_belief(settings: BeliefSettings, contact_points: int, free_points: int, feature_dim: int, *,
+                 symmetries: jaxlie.SE3 | None = None, calibration: BeliefCalibration | None = None) -> PoseBelief:
+    """A belief with no touch (every hypothesis slot empty).
+
+    Args:
+        settings: the update's parameters (hypothesis and touch slots).
+        contact_points, free_points: the evidence's sizes (:func:`~tactojax.localize.touch_evidence`).
+        feature_dim: length of the retrieval features.
+        symmetries: (S,) the object's symmetry transforms (default: none but the identity).
+        calibration: the map's likelihood scales (default: :meth:`BeliefCalibration.default`).
+    """
     count, slots = settings.hypotheses, settings.max_touches
     evidence = TouchEvidence(contact=jnp.zeros((slots, contact_points, 3)),
                              contact_valid=jnp.zeros((slots, contact_points), bool),
                              free=jnp.zeros((slots, free_points, 3)), free_valid=jnp.zeros((slots, free_points), bool))
     return PoseBelief(T_object_reference=jaxlie.SE3.identity((count,)),
                       log_weights=jnp.full((count,), -jnp.inf), evidence=evidence,
-                      T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool))
+                      features=jnp.zeros((slots, feature_dim)),
+                      T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
+                      symmetries=jaxlie.SE3.identity((1,)) if symmetries is None else symmetries,
+                      calibration=BeliefCalibration.default() if calibration is None else calibration)
 
 
 def _take(tree, index):
     return jax.tree.map(lambda x: x[index], tree)
 
 
-def remember(belief: PoseBelief, evidence: TouchEvidence, T_reference_touch: jaxlie.SE3) -> PoseBelief:
+def _unit(feature: Float[Array, "F"]) -> Float[Array, "F"]:
+    return feature / jnp.maximum(jnp.linalg.norm(feature), 1e-12)
+
+
+def remember(belief: PoseBelief, evidence: TouchEvidence, feature: Float[Array, "F"],
+             T_reference_touch: jaxlie.SE3) -> PoseBelief:
     """Step 1: the touch joins the buffer (the oldest non-reference touch goes when it is full)."""
     slots = belief.touch_valid.shape[0]
     full = jnp.all(belief.touch_valid)
     # When full, shift slots 2.. down by one (slot 0 stays the reference) and write the last.
     order = jnp.where(full, jnp.concatenate([jnp.array([0]), jnp.arange(2, slots + 1) % slots]), jnp.arange(slots))
-    shifted = jax.tree.map(lambda x: x[order], (belief.evidence, belief.T_reference_touch.wxyz_xyz, belief.touch_valid))
+    buffers = (belief.evidence, belief.features, belief.T_reference_touch.wxyz_xyz, belief.touch_valid)
+    evidence_buffer, features, poses, valid = _take(buffers, order)
     slot = jnp.where(full, slots - 1, jnp.argmin(belief.touch_valid))
     put = lambda old, new: old.at[slot].set(new)  # noqa: E731
-    evidence_buffer = jax.tree.map(put, shifted[0], evidence)
-    poses = put(shifted[1], T_reference_touch.wxyz_xyz)
-    return belief.replace(evidence=evidence_buffer, T_reference_touch=jaxlie.SE3(poses),
-                          touch_valid=put(shifted[2], True))
+    return belief.replace(evidence=jax.tree.map(put, evidence_buffer, evidence), features=put(features, _unit(feature)),
+                          T_reference_touch=jaxlie.SE3(put(poses, T_reference_touch.wxyz_xyz)),
+                          touch_valid=put(valid, True))
 
 
-def nearest_view(view: LocalizationMap, T_object_sensor: jaxlie.SE3, evidence: TouchEvidence) -> Int[Array, ""]:
-    """The stored imprint facing the touch's way whose contact centre is nearest to the touch's."""
+def facing_imprints(view: LocalizationMap, T_object_sensor: jaxlie.SE3, evidence: TouchEvidence,
+                    count: int) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
+    """The ``count`` stored imprints nearest to where a touch lands (their contact centres to
+    its), among those facing its way (gel normals within 60 degrees), nearest first; and which
+    of them are real."""
     centre = T_object_sensor @ valid_centroid(evidence.contact, evidence.contact_valid)
-    normal = T_object_sensor.rotation() @ jnp.array([0.0, 0.0, 1.0])
+    normal = T_object_sensor.rotation().as_matrix()[:, 2]
     normals = view.T_object_sensor.rotation().as_matrix()[..., :, 2]
     distance = jnp.linalg.norm(view.centres - centre, axis=-1)
     ok = view.imprint_valid & (normals @ normal >= 0.5)
-    return jnp.argmin(jnp.where(ok, distance, jnp.inf))
+    score, nearest = jax.lax.top_k(jnp.where(ok, -distance, -jnp.inf), count)
+    return nearest, jnp.isfinite(score)
 
 
-def touch_log_likelihood(view: LocalizationMap, views: SurfaceViews, evidence: TouchEvidence,
-                         T_object_sensor: jaxlie.SE3, settings: LikelihoodSettings) -> Float[Array, ""]:
-    """One touch's log-likelihood at a pose, in the view nearest to where it lands."""
-    index = nearest_view(view, T_object_sensor, evidence)
-    return log_likelihood(views, index, _take(view.T_object_sensor, index).inverse() @ T_object_sensor, evidence,
-                          settings)
+def touch_log_likelihood(view: LocalizationMap, surface: MapSurface, evidence: TouchEvidence,
+                         feature: Float[Array, "F"], T_object_sensor: jaxlie.SE3, settings: BeliefSettings,
+                         calibration: BeliefCalibration) -> Float[Array, ""]:
+    """One touch's log-likelihood at a pose: ``temperature`` x its geometric likelihood against
+    the map's surface, plus ``appearance`` x the best cosine similarity of its unit features to
+    the stored imprints where it lands (0 where none faces its way)."""
+    geometry = log_likelihood(surface, T_object_sensor, evidence, settings.likelihood)
+    nearby, nearby_valid = facing_imprints(view, T_object_sensor, evidence, settings.neighbours)
+    similarity = jnp.max(jnp.where(nearby_valid, view.features[nearby] @ feature, -1.0))
+    similarity = jnp.where(jnp.any(nearby_valid), similarity, 0.0)
+    return calibration.temperature * geometry + calibration.appearance * similarity
 
 
 def _first_points(evidence: TouchEvidence, count: int) -> TouchEvidence:
@@ -202,54 +274,61 @@ def _first_points(evidence: TouchEvidence, count: int) -> TouchEvidence:
     return jax.tree.map(lambda x: x[:count], evidence)
 
 
-def candidates(view: LocalizationMap, views: SurfaceViews, evidence: TouchEvidence, feature: Float[Array, "F"],
-               opening: Float[Array, ""], settings: BeliefSettings,
-               exclude: int | Int[Array, ""] = -1) -> tuple[jaxlie.SE3, Float[Array, "C"]]:
-    """Step 2: the best ``new_hypotheses`` candidate poses of one touch (object frame) and
-    their coarse log-likelihoods (-inf where retrieval found too few imprints).
+def candidates(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, evidence: TouchEvidence,
+               feature: Float[Array, "F"], opening: Float[Array, ""], T_reference_touch: jaxlie.SE3,
+               settings: BeliefSettings, exclude: int | Int[Array, ""] = -1) -> tuple[jaxlie.SE3, Float[Array, "C"]]:
+    """Step 2: the best ``new_hypotheses`` candidate poses of the reference touch that a new
+    touch proposes (object frame), and their coarse log-likelihoods (-inf where retrieval found
+    too few imprints).
 
-    Coarse to fine: every candidate of every source is first screened with a few of the
-    touch's points (``screen_points``, one depth alignment step); the ``screened`` best are
-    then aligned and scored with all of them, from their original offsets.
+    Every candidate is scored by the coarse likelihood of *every* touch the belief holds
+    (``belief`` already remembers the new one): what the other touches say is the strongest
+    evidence a candidate can get (on a long cylinder, a single touch fits hundreds of them
+    equally). Coarse to fine: all candidates are first screened with a few points of each
+    touch (``screen_points``, one depth alignment step of the new touch); the ``screened``
+    best are then aligned with all the new touch's points, from their original offsets, and
+    scored with all points of every touch.
     """
-    feature = feature / jnp.maximum(jnp.linalg.norm(feature), 1e-12)
     sources, _, sources_valid = rank_imprints(
-        view.features @ feature, view.openings, view.imprint_valid, opening, settings.sources,
+        view.features @ _unit(feature), view.openings, view.imprint_valid, opening, settings.sources,
         max_opening_difference_mm=settings.max_opening_difference_mm, exclude=exclude)
     offsets = settings.grid.offsets(valid_centroid(evidence.contact, evidence.contact_valid))
     few = _first_points(evidence, settings.screen_points)
+    few_of_every_touch = jax.tree.map(lambda x: x[:, :settings.screen_points], belief.evidence)
     per_source = settings.grid.size
 
+    def joint(T_object_reference, evidence_):
+        per_touch = jax.vmap(lambda e, T_touch: log_likelihood(surface, T_object_reference @ T_touch, e,
+                                                               settings.coarse))(evidence_, belief.T_reference_touch)
+        return jnp.sum(jnp.where(belief.touch_valid, per_touch, 0.0))
+
     def screen(source, T_source_sensor):
-        T_source_sensor = align_depth(views, source, T_source_sensor, few, iterations=1)
-        return log_likelihood(views, source, T_source_sensor, few, settings.coarse)
+        T = align_depth(surface, _take(view.T_object_sensor, source) @ T_source_sensor, few, iterations=1)
+        return joint(T @ T_reference_touch.inverse(), few_of_every_touch)
 
     screening = jax.vmap(lambda source: jax.vmap(lambda T: screen(source, T))(offsets))(sources)  # (sources, S)
     screening = jnp.where(sources_valid[:, None], screening, -jnp.inf).reshape(-1)
     kept_scores, kept = jax.lax.top_k(screening, min(settings.screened, screening.shape[0]))
     source = sources[kept // per_source]
-
-    def score(source, T_source_sensor):
-        T_source_sensor = align_depth(views, source, T_source_sensor, evidence)
-        return (log_likelihood(views, source, T_source_sensor, evidence, settings.coarse),
-                _take(view.T_object_sensor, source) @ T_source_sensor)
-
-    scores, poses = jax.vmap(score)(source, _take(offsets, kept % per_source))
+    aligned = jax.vmap(lambda s, T: align_depth(surface, _take(view.T_object_sensor, s) @ T, evidence))(
+        source, _take(offsets, kept % per_source))
+    T_object_reference = aligned @ T_reference_touch.inverse()
+    scores = jax.vmap(lambda T: joint(T, belief.evidence))(T_object_reference)
     scores = jnp.where(jnp.isfinite(kept_scores), scores, -jnp.inf)
     best_scores, best = jax.lax.top_k(scores, settings.new_hypotheses)
-    return _take(poses, best), best_scores
+    return _take(T_object_reference, best), best_scores
 
 
-def refine(view: LocalizationMap, views: SurfaceViews, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+def refine(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
            settings: BeliefSettings) -> jaxlie.SE3:
-    """Step 3: ICP of all remembered touches at once from one hypothesis (reference frame)."""
-    n = settings.registration_neighbours
+    """Step 4: ICP of all remembered touches at once from one hypothesis (reference frame),
+    each touch's points against the stored imprints around where it lands."""
     T_touches = T_object_reference @ belief.T_reference_touch  # (T,)
-    landing = jax.vmap(lambda T, e: nearest_view(view, T, e))(T_touches, belief.evidence)
+    nearby, nearby_valid = jax.vmap(lambda T, e: facing_imprints(view, T, e, settings.neighbours))(
+        T_touches, belief.evidence)
     used = settings.registration_points
-    # Every touch's points against the n imprints around where that touch lands.
-    candidates_ = jnp.repeat(views.neighbours[landing, :n], used, axis=0)  # (T * used, n)
-    candidates_valid = jnp.repeat(views.neighbours_valid[landing, :n] & belief.touch_valid[:, None], used, axis=0)
+    candidates_ = jnp.repeat(nearby, used, axis=0)  # (T * used, n)
+    candidates_valid = jnp.repeat(nearby_valid & belief.touch_valid[:, None], used, axis=0)
     points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact[:, :used])
     points_valid = belief.evidence.contact_valid[:, :used] & belief.touch_valid[:, None]
     estimate = icp(view, candidates_, candidates_valid, points.reshape(-1, 3), points_valid.reshape(-1),
@@ -257,12 +336,15 @@ def refine(view: LocalizationMap, views: SurfaceViews, belief: PoseBelief, T_obj
     return estimate.T_object_sensor
 
 
-def weigh(view: LocalizationMap, views: SurfaceViews, belief: PoseBelief, T_object_reference: jaxlie.SE3,
-          settings: LikelihoodSettings) -> Float[Array, ""]:
-    """Step 4: the log-likelihood of all remembered touches at one hypothesis."""
+def weigh(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+          settings: BeliefSettings) -> Float[Array, ""]:
+    """Step 3: the log-likelihood of all remembered touches at one hypothesis, discounted for
+    their correlation (``n ** -fusion_exponent``)."""
     T_touches = T_object_reference @ belief.T_reference_touch
-    per_touch = jax.vmap(lambda e, T: touch_log_likelihood(view, views, e, T, settings))(belief.evidence, T_touches)
-    return jnp.sum(jnp.where(belief.touch_valid, per_touch, 0.0))
+    per_touch = jax.vmap(lambda e, f, T: touch_log_likelihood(view, surface, e, f, T, settings, belief.calibration))(
+        belief.evidence, belief.features, T_touches)
+    count = jnp.maximum(jnp.sum(belief.touch_valid), 1).astype(jnp.float32)
+    return count ** -belief.calibration.fusion_exponent * jnp.sum(jnp.where(belief.touch_valid, per_touch, 0.0))
 
 
 def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "N"], count: int,
@@ -281,7 +363,7 @@ def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "
 
 def update_belief(
     view: LocalizationMap,
-    views: SurfaceViews,
+    surface: MapSurface,
     belief: PoseBelief,
     evidence: TouchEvidence,
     feature: Float[Array, "F"],
@@ -295,7 +377,7 @@ def update_belief(
 
     Args:
         view: the object's map.
-        views: its local surface views (:func:`~tactojax.localize.build_surface_views`).
+        surface: its surface (:func:`~tactojax.localize.build_map_surface`).
         belief: the belief so far (:func:`empty_belief` before the first touch).
         evidence: the new touch (:func:`~tactojax.localize.touch_evidence`).
         feature: (F,) its retrieval features; opening: its gripper opening, mm.
@@ -310,16 +392,16 @@ def update_belief(
     """
     before = belief
     first = ~jnp.any(belief.touch_valid)
-    belief = remember(belief, evidence, T_reference_touch)
-    T_object_touch, new_scores = candidates(view, views, evidence, feature, opening, settings, exclude)
-    T_new = T_object_touch @ T_reference_touch.inverse()
+    belief = remember(belief, evidence, feature, T_reference_touch)
+    T_new, new_scores = candidates(view, surface, belief, evidence, feature, opening, T_reference_touch, settings,
+                                   exclude)
     old_valid = jnp.isfinite(belief.log_weights) & ~first
     pooled = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), belief.T_object_reference, T_new)
     pooled_valid = jnp.concatenate([old_valid, jnp.isfinite(new_scores)])
-    score = jax.vmap(lambda T: weigh(view, views, belief, T, settings.likelihood))
+    score = jax.vmap(lambda T: weigh(view, surface, belief, T, settings))
     scores = jnp.where(pooled_valid, score(pooled), -jnp.inf)
     _, chosen = jax.lax.top_k(scores, settings.refine)
-    refined = jax.vmap(lambda T: refine(view, views, belief, T, settings))(_take(pooled, chosen))
+    refined = jax.vmap(lambda T: refine(view, belief, T, settings))(_take(pooled, chosen))
     refined_scores = jnp.where(jnp.isfinite(scores[chosen]), score(refined), -jnp.inf)
     # A refinement that fits worse than its start keeps the start.
     better = refined_scores >= scores[chosen]

@@ -2,19 +2,20 @@
 
 A touch is summarised by fixed-size evidence (:class:`TouchEvidence`): points where the gel
 felt the object (x, y, -h) and points of the gel plane where it felt nothing (x, y, 0), both
-in its sensor frame. At a pose hypothesis, both are placed in a local view of the map
-(:class:`~tactojax.localize._views.SurfaceViews`) and scored point by point:
+in its sensor frame. At a pose hypothesis, both are placed in the object frame and read in the
+whole map's signed-distance grid (:class:`~tactojax.localize.MapSurface`), point by point:
 
-- a contact point over known surface: a robust Gaussian on its distance to the surface along
-  the view's normal, ``log((1 - outlier) N(r; 0, sigma) + outlier / range)``;
-- a contact point over unknown surface: ``log(1 / range)`` (the map says nothing there), or a
-  violation when it lies in space that the map saw free;
-- a no-contact point where the map's surface would have pressed the gel deeper than
-  ``margin_mm``: a violation, ``log(violation)``. This is the paper's "negative information"
-  (its section VIII): it is what tells a patch from the same patch slid along an edge.
+- a contact point where the surface is known: a robust Gaussian on its signed distance to
+  the surface, ``log((1 - outlier) N(d; 0, sigma) + outlier / range)``;
+- a contact point where the map knows no surface: ``log(1 / range)`` (the map says nothing);
+- a no-contact point of the gel plane that lies inside the object deeper than ``margin_mm``
+  (the object would have pressed the gel there): a violation, ``log(violation)``. This is the
+  paper's "negative information" (its section VIII): it tells a patch from the same patch slid
+  along an edge.
 
-The sum over points is tempered by ``temperature`` (neighbouring pixels' errors are not
-independent, so the raw sum is far too confident; see :class:`LikelihoodSettings`).
+The sum over points is far too confident as it stands (neighbouring pixels' errors are not
+independent): the belief scales it by a temperature fit on the map's own touches
+(:class:`~tactojax.localize.BeliefCalibration`).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from tactojax.geometry import pixel_grid
 from tactojax.localize._consistency import FREE_HEIGHT_MM
 from tactojax.localize._correspondences import matvec
 from tactojax.localize._methods import draw_pixels, pixel_priority
-from tactojax.localize._views import SurfaceViews
+from tactojax.localize._surface import MapSurface
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,6 @@ class LikelihoodSettings:
     violation: float = 0.05
     """Probability of a no-contact pixel where the map's surface presses the gel (or of
     contact in space the map saw free)."""
-    temperature: float = 0.1
-    """The log-likelihood is scaled by this (an effective share of independent points)."""
 
 
 @struct.dataclass
@@ -92,83 +91,74 @@ def touch_evidence(
 
 
 def point_log_likelihoods(
-    views: SurfaceViews,
-    index: Int[Array, ""],
-    T_view_sensor: jaxlie.SE3,
+    surface: MapSurface,
+    T_object_sensor: jaxlie.SE3,
     evidence: TouchEvidence,
     settings: LikelihoodSettings = LikelihoodSettings(),
 ) -> tuple[Float[Array, "P"], Float[Array, "F"]]:
-    """Untempered log-likelihood of every contact and no-contact point, in view ``index``.
+    """Untempered log-likelihood of every contact and no-contact point of a touch at a pose.
 
     Args:
-        views: local views of the map.
-        index: which view.
-        T_view_sensor: the touch's sensor pose in that view's sensor frame.
+        surface: the map's surface.
+        T_object_sensor: the touch's sensor pose hypothesis in the object frame, mm.
         evidence: the touch.
         settings: noise model.
 
     Returns:
         (P,) contact and (F,) no-contact log-likelihoods (0 for invalid points).
     """
-    rotation, translation = T_view_sensor.rotation().as_matrix(), T_view_sensor.translation()
-    contact = matvec(rotation, evidence.contact) + translation
-    free = matvec(rotation, evidence.free) + translation
-    points = jnp.concatenate([contact, free])
-    surface, known, free_z = views.lookup(jnp.full(points.shape[:1], index), points)
+    rotation, translation = T_object_sensor.rotation().as_matrix(), T_object_sensor.translation()
     count = evidence.contact.shape[0]
+    points = matvec(rotation, jnp.concatenate([evidence.contact, evidence.free])) + translation
+    distance, known = surface.signed_distance(points)
     sigma, uniform = settings.sigma_mm, 1.0 / settings.range_mm
-    residual = contact[:, 2] - surface[:count]
-    gauss = jnp.exp(-0.5 * (residual / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+    gauss = jnp.exp(-0.5 * (distance[:count] / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
     fit = jnp.log((1 - settings.outlier) * gauss + settings.outlier * uniform)
-    in_free_space = contact[:, 2] < free_z[:count] - settings.margin_mm
-    log_violation = math.log(settings.violation)
-    unknown = jnp.where(in_free_space, log_violation, math.log(uniform))
-    contact_ll = jnp.where(known[:count], fit, unknown)
-    pressed = known[count:] & (surface[count:] < free[:, 2] - settings.margin_mm)
-    free_ll = jnp.where(pressed, log_violation, math.log1p(-settings.violation))
+    contact_ll = jnp.where(known[:count], fit, math.log(uniform))
+    pressed = known[count:] & (distance[count:] < -settings.margin_mm)
+    free_ll = jnp.where(pressed, math.log(settings.violation), math.log1p(-settings.violation))
     return (jnp.where(evidence.contact_valid, contact_ll, 0.0), jnp.where(evidence.free_valid, free_ll, 0.0))
 
 
 def log_likelihood(
-    views: SurfaceViews,
-    index: Int[Array, ""],
-    T_view_sensor: jaxlie.SE3,
+    surface: MapSurface,
+    T_object_sensor: jaxlie.SE3,
     evidence: TouchEvidence,
     settings: LikelihoodSettings = LikelihoodSettings(),
 ) -> Float[Array, ""]:
-    """Tempered log-likelihood of a touch at ``T_view_sensor`` in view ``index`` (higher is better)."""
-    contact_ll, free_ll = point_log_likelihoods(views, index, T_view_sensor, evidence, settings)
-    return settings.temperature * (jnp.sum(contact_ll) + jnp.sum(free_ll))
+    """Log-likelihood of a touch at ``T_object_sensor``, the sum over its points (untempered;
+    higher is better)."""
+    contact_ll, free_ll = point_log_likelihoods(surface, T_object_sensor, evidence, settings)
+    return jnp.sum(contact_ll) + jnp.sum(free_ll)
 
 
 def align_depth(
-    views: SurfaceViews,
-    index: Int[Array, ""],
-    T_view_sensor: jaxlie.SE3,
+    surface: MapSurface,
+    T_object_sensor: jaxlie.SE3,
     evidence: TouchEvidence,
     *,
     iterations: int = 2,
     max_offset_mm: float = 3.0,
 ) -> jaxlie.SE3:
-    """The pose moved along the view's normal so that the touch's contact meets the surface.
+    """The pose moved along its gel normal (the sensor's z) so that the touch's contact meets
+    the surface.
 
     A shifted or turned hypothesis is generally too deep or too shallow; the depth offset is
     the one degree of freedom a contact patch pins down at once. The first iteration moves by
-    the mean distance to the surface of the contact points over known surface within
+    the mean signed distance of the contact points whose surface is known within
     ``max_offset_mm``; each later one by the mean of those within ``max_offset_mm / 3`` of the
     previous estimate (a trimmed mean: no sort, cheap for thousands of candidates).
     """
     def step(carry, width):
         T, previous = carry
         rotation, translation = T.rotation().as_matrix(), T.translation()
-        contact = matvec(rotation, evidence.contact) + translation
-        surface, known, _ = views.lookup(jnp.full(contact.shape[:1], index), contact)
-        gap = surface - contact[:, 2]
-        use = evidence.contact_valid & known & (jnp.abs(gap - previous) <= width)
-        offset = jnp.sum(jnp.where(use, gap - previous, 0.0)) / jnp.maximum(jnp.sum(use), 1)
-        T = jaxlie.SE3.from_translation(jnp.array([0.0, 0.0, 1.0]) * offset) @ T
+        distance, known = surface.signed_distance(matvec(rotation, evidence.contact) + translation)
+        use = evidence.contact_valid & known & (jnp.abs(distance - previous) <= width)
+        offset = jnp.sum(jnp.where(use, distance - previous, 0.0)) / jnp.maximum(jnp.sum(use), 1)
+        # Moving the sensor by +offset along its z carries the contact that far into the object.
+        T = T @ jaxlie.SE3.from_translation(jnp.array([0.0, 0.0, 1.0]) * offset)
         return (T, jnp.zeros_like(offset)), None
 
     widths = max_offset_mm / 3.0 ** jnp.arange(iterations, dtype=jnp.float32)
-    (T, _), _ = jax.lax.scan(step, (T_view_sensor, jnp.float32(0.0)), widths)
+    (T, _), _ = jax.lax.scan(step, (T_object_sensor, jnp.float32(0.0)), widths)
     return T

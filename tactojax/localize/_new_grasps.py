@@ -23,12 +23,12 @@ from flax import struct
 from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
+from tactojax.localize._belief import WITHIN_MM, BeliefCalibration, BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import moment_rmse
 from tactojax.localize._likelihood import touch_evidence
 from tactojax.localize._map import LocalizationMap, Query
 from tactojax.localize._methods import localize_query, parse_method
-from tactojax.localize._views import SurfaceViews
+from tactojax.localize._surface import MapSurface
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
@@ -120,8 +120,8 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
 
 
 @functools.partial(jax.jit, static_argnames=("method", "points_per_query", "settings"))
-def _single_touches(view: LocalizationMap, views: SurfaceViews | None, episodes: TestEpisodes, symmetries,
-                    method, points_per_query: int, settings: BeliefSettings):
+def _single_touches(view: LocalizationMap, surface: MapSurface | None, episodes: TestEpisodes, symmetries,
+                    calibration: BeliefCalibration, method, points_per_query: int, settings: BeliefSettings):
     """Every grasp's sensor-finger touch alone: (E * G,) errors."""
     take = lambda x: x[:, :, 0].reshape(-1, *x.shape[3:])  # noqa: E731
     heightmaps, masks, features = take(episodes.heightmaps), take(episodes.masks), take(episodes.features)
@@ -132,8 +132,9 @@ def _single_touches(view: LocalizationMap, views: SurfaceViews | None, episodes:
     def one(heightmap, mask, feature, opening, T, m, c):
         if method.kind == "belief":
             evidence = touch_evidence(heightmap, mask, view.mm_per_px)
-            belief = update_belief(view, views, empty_belief(settings, *_sizes(evidence)), evidence, feature, opening,
-                                   jaxlie.SE3.identity(), settings)
+            empty = empty_belief(settings, *_sizes(evidence), feature.shape[0], symmetries=symmetries,
+                                 calibration=calibration)
+            belief = update_belief(view, surface, empty, evidence, feature, opening, jaxlie.SE3.identity(), settings)
             estimate, probability = belief.best, belief.probability_within()
         else:
             query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
@@ -154,19 +155,20 @@ def _sizes(evidence):
 
 
 @functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _fused_episode(view: LocalizationMap, views: SurfaceViews, episode: TestEpisodes, symmetries, fingers: int,
-                   settings: BeliefSettings):
+def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries,
+                   calibration: BeliefCalibration, fingers: int, settings: BeliefSettings):
     """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
     grasps = episode.openings.shape[0]
     T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
     evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
                                                                                        episode.masks)
-    belief = empty_belief(settings, *_sizes(jax.tree.map(lambda x: x[0, 0], evidence)))
+    belief = empty_belief(settings, *_sizes(jax.tree.map(lambda x: x[0, 0], evidence)), episode.features.shape[-1],
+                          symmetries=symmetries, calibration=calibration)
 
     def grasp(belief, g):
         for finger in range(fingers):
             T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
-            belief = update_belief(view, views, belief, jax.tree.map(lambda x: x[g, finger], evidence),
+            belief = update_belief(view, surface, belief, jax.tree.map(lambda x: x[g, finger], evidence),
                                    episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
                                    settings)
         # Error over every touch fused so far (grasps 0..g, the fingers used).
@@ -183,12 +185,13 @@ def _fused_episode(view: LocalizationMap, views: SurfaceViews, episode: TestEpis
 
 def evaluate_new_grasps(
     view: LocalizationMap,
-    views: SurfaceViews | None,
+    surface: MapSurface | None,
     episodes: TestEpisodes,
     methods=("cti-icp-5", "belief"),
     *,
     fingers: int = 1,
     symmetries: jaxlie.SE3 | None = None,
+    calibration: BeliefCalibration | None = None,
     settings: BeliefSettings = BeliefSettings(),
     points_per_query: int = 128,
     progress: bool = False,
@@ -197,11 +200,12 @@ def evaluate_new_grasps(
 
     Args:
         view: the object's map.
-        views: its local surface views (needed by the belief).
+        surface: its surface (:func:`~tactojax.localize.build_map_surface`; needed by the belief).
         episodes: the test grasps (:class:`TestEpisodes`, F >= ``fingers``).
         methods: method names (``"belief"`` or any :func:`~tactojax.localize.localize` method).
         fingers: fingers fused per grasp (1 or 2).
         symmetries: (S,) the object's symmetry transforms (default: the identity).
+        calibration: the map's likelihood scales (default: uncalibrated).
         settings: belief parameters.
         points_per_query: query points of the ICP methods.
         progress: show progress bars.
@@ -212,15 +216,18 @@ def evaluate_new_grasps(
     """
     if symmetries is None:
         symmetries = jaxlie.SE3.identity((1,))
+    if calibration is None:
+        calibration = BeliefCalibration.default()
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
     results = []
     for name in tqdm(methods, desc="single touches", disable=not progress):
         method = parse_method(name)
-        if method.kind == "belief" and views is None:
-            raise ValueError("the belief needs the map's surface views (build_surface_views)")
-        out = jax.device_get(_single_touches(view, views, episodes, symmetries, method, points_per_query, settings))
+        if method.kind == "belief" and surface is None:
+            raise ValueError("the belief needs the map's surface (build_map_surface)")
+        out = jax.device_get(_single_touches(view, surface, episodes, symmetries, calibration, method,
+                                             points_per_query, settings))
         results.append(EpisodeErrors(method.name, 1, 1, False, *(np.asarray(x) for x in out)))
     if any(parse_method(name).kind == "belief" for name in methods):
         count, grasps = episodes.openings.shape
@@ -228,7 +235,8 @@ def evaluate_new_grasps(
         for e in tqdm(range(count), desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})",
                       disable=not progress):
             episode = jax.tree.map(lambda x: x[e], episodes)
-            per_episode.append(jax.device_get(_fused_episode(view, views, episode, symmetries, fingers, settings)))
+            per_episode.append(jax.device_get(_fused_episode(view, surface, episode, symmetries, calibration, fingers,
+                                                             settings)))
         stacked = [np.stack([p[i] for p in per_episode]) for i in range(5)]  # (E, G) each
         for g in range(grasps):
             results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))

@@ -1,0 +1,113 @@
+"""The whole map's surface as one signed-distance grid: where a touch fits, at any pose.
+
+Every contact point a map stores (its tactile map's sampled points, object frame, with their
+normals) is a small planar sample of the object's surface. :func:`build_map_surface` turns them
+into a dense grid over the object: at every cell within ``reach_mm`` of a stored point, the
+*signed* distance from the cell to the tangent plane of its nearest stored point (positive
+outside the object, along the stored normal; NaN farther away: the map says nothing there).
+A touch is then scored at any hypothesis by one trilinear look-up per point, the opposite
+finger's touch and a touch that lands between stored imprints included, against the surface
+that all the imprints felt together.
+
+The grid is built once per map on the host (SciPy's k-d tree for the nearest stored point;
+about 1-4 s for the catalog maps on 2 cores), and read inside jit. At 0.5 mm pitch the catalog
+maps take 12-19 MB (float32).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from jaxtyping import Array, Bool, Float
+
+from tactojax.mapping import TactileMap
+
+
+@dataclass(frozen=True)
+class SurfaceSettings:
+    """How the surface grid is built (static)."""
+
+    pitch_mm: float = 0.5
+    """Grid step, mm."""
+    reach_mm: float = 1.5
+    """Cells farther than this from every stored point are unknown, mm."""
+    margin_mm: float = 3.0
+    """How far the grid extends beyond the stored points, mm."""
+
+
+@struct.dataclass
+class MapSurface:
+    """A signed-distance grid of the map's surface (see the module docstring)."""
+
+    distance: Float[Array, "X Y Z"]
+    """Signed distance (mm) from every cell centre to the surface: > 0 outside the object; NaN
+    where no stored point lies within ``reach_mm``."""
+    origin: Float[Array, "3"]
+    """Object-frame position of cell (0, 0, 0), mm."""
+    pitch_mm: float = struct.field(pytree_node=False)
+    """Grid step, mm."""
+
+    def signed_distance(self, p_object: Float[Array, "*batch 3"]) -> tuple[Float[Array, "*batch"], Bool[Array, "*batch"]]:
+        """Signed distance (mm, trilinear over the known corners of its cell, weights
+        renormalised) and whether it is known (any corner known, inside the grid) at
+        object-frame points ``p_object``."""
+        shape = jnp.array(self.distance.shape)
+        cell = (p_object - self.origin) / self.pitch_mm
+        inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)
+        low = jnp.clip(jnp.floor(cell), 0, shape - 2).astype(jnp.int32)
+        fraction = jnp.clip(cell - low, 0.0, 1.0)
+        total = jnp.zeros(p_object.shape[:-1])
+        value = jnp.zeros(p_object.shape[:-1])
+        for corner in np.ndindex(2, 2, 2):
+            offset = np.array(corner)
+            index = low + offset
+            d = self.distance[index[..., 0], index[..., 1], index[..., 2]]
+            weight = jnp.prod(jnp.where(offset == 1, fraction, 1.0 - fraction), axis=-1) + 1e-6
+            weight = jnp.where(jnp.isfinite(d), weight, 0.0)
+            total = total + weight
+            value = value + weight * jnp.where(jnp.isfinite(d), d, 0.0)
+        known = inside & (total > 0)
+        return jnp.where(known, value / jnp.maximum(total, 1e-12), 0.0), known
+
+
+def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = SurfaceSettings(), *,
+                      exclude: int = -1) -> MapSurface:
+    """The signed-distance grid of a map's stored contact points (see the module docstring).
+
+    Args:
+        tactile_map: the map (its ``points``, ``normals``, ``valid`` and poses are read).
+        settings: grid pitch, reach and margin.
+        exclude: an imprint left out (leave-one-out), -1 for none.
+
+    Returns:
+        the :class:`MapSurface` (an empty map gives a one-cell grid that knows nothing).
+    """
+    from scipy.ndimage import binary_dilation
+    from scipy.spatial import cKDTree
+
+    valid = np.asarray(tactile_map.point_valid).copy()
+    if exclude >= 0:
+        valid[exclude] = False
+    points = np.asarray(tactile_map.points_object, np.float64)[valid]
+    normals = np.asarray(tactile_map.normals_object, np.float64)[valid]
+    pitch = settings.pitch_mm
+    if len(points) == 0:
+        return MapSurface(distance=jnp.full((2, 2, 2), jnp.nan, jnp.float32), origin=jnp.zeros(3), pitch_mm=pitch)
+    origin = points.min(axis=0) - settings.margin_mm
+    shape = tuple(int(n) for n in np.ceil((points.max(axis=0) + settings.margin_mm - origin) / pitch) + 1)
+    # Only cells near a stored point can be known: mark the points' cells, grow by the reach.
+    occupied = np.zeros(shape, bool)
+    occupied[tuple(np.round((points - origin) / pitch).astype(int).T)] = True
+    steps = int(np.ceil(settings.reach_mm / pitch))
+    ball = np.linalg.norm(np.indices((2 * steps + 1,) * 3) - steps, axis=0) <= steps + 0.5
+    near = np.argwhere(binary_dilation(occupied, structure=ball))
+    centres = origin + near * pitch
+    distance, nearest = cKDTree(points).query(centres, distance_upper_bound=settings.reach_mm, workers=-1)
+    found = np.isfinite(distance)
+    grid = np.full(shape, np.nan, np.float32)
+    offsets = centres[found] - points[nearest[found]]
+    grid[tuple(near[found].T)] = np.sum(offsets * normals[nearest[found]], axis=-1)
+    return MapSurface(distance=jnp.asarray(grid), origin=jnp.asarray(origin, jnp.float32), pitch_mm=pitch)
