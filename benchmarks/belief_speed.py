@@ -9,9 +9,10 @@ once) and times every call, interleaved call by call with CTI-ICP-5 (``localize_
 paper's method) on the same touch, so that the ratio means something on a busy machine.
 
 Reported: compile times, the median and 90th percentile of first and further touches, the
-CTI-ICP-5 median, and the time to build the map's surface views (once per map). Heightmaps and
-features are computed beforehand (they are the same for every method: see
-``benchmarks/whole_touch.py``).
+CTI-ICP-5 median, and the time to build the map's surface (:func:`tactojax.localize.build_map_surface`,
+once per map, on the host). The belief runs with the object's symmetries (a catalog object) and
+the calibration stored in the map's header, if any. Heightmaps and features are computed
+beforehand (they are the same for every method: see ``benchmarks/whole_touch.py``).
 
     python benchmarks/belief_speed.py scissors.npz --test data/test-scissors --json belief_speed.json
 """
@@ -32,9 +33,11 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, write_json
 
 from tactojax.features import encode_images
-from tactojax.io import DEFAULT_ENCODER, load_tactile_map, load_test_episodes, resolve_encoder, resolve_shape_model
-from tactojax.localize import (BeliefSettings, LocalizationMap, Query, build_surface_views, empty_belief,
-                               localize_query, parse_method, touch_evidence, update_belief)
+from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, load_test_episodes, resolve_encoder, resolve_shape_model,
+                         tactile_map_metadata)
+from tactojax.localize import (BeliefSettings, LocalizationMap, Query, build_map_surface, calibration_from_json,
+                               empty_belief, localize_query, parse_method, touch_evidence, update_belief)
+from tactojax.objects import CATALOG, get_object
 
 
 def _seconds(call) -> tuple[float, object]:
@@ -58,8 +61,12 @@ def main() -> None:
     tactile_map = load_tactile_map(args.map)
     tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=False))
     view = LocalizationMap.from_tactile_map(tactile_map)
-    views_first_s, views = _seconds(lambda: build_surface_views(view))
-    views_s, _ = _seconds(lambda: build_surface_views(view))
+    surface_first_s, surface = _seconds(lambda: build_map_surface(tactile_map))
+    surface_s, _ = _seconds(lambda: build_map_surface(tactile_map))
+    object_id = tactile_map.object_id
+    symmetries = get_object(object_id).symmetry.transforms() if object_id in CATALOG else None
+    stored = tactile_map_metadata(args.map).get("metadata", {}).get("belief_calibration")
+    calibration = None if stored is None else calibration_from_json(stored)
     episodes, fingers = load_test_episodes(args.test, tactile_map.object_id, model, encoder, progress=False)
     if args.fingers > fingers:
         raise SystemExit(f"--fingers {args.fingers}: the test set records {fingers} finger(s) per grasp")
@@ -77,8 +84,9 @@ def main() -> None:
         return query, evidence_of(query.heightmap, query.mask), jax.tree.map(take, episodes.T_object_sensor)
 
     query, evidence, _ = touch(0, 0, 0)
-    empty = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0])
-    compile_belief_s, _ = _seconds(lambda: update(view, views, empty, evidence, query.feature, query.opening,
+    empty = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0], query.feature.shape[0],
+                         symmetries=symmetries, calibration=calibration)
+    compile_belief_s, _ = _seconds(lambda: update(view, surface, empty, evidence, query.feature, query.opening,
                                                  jaxlie.SE3.identity(), settings))
     compile_cti_s, _ = _seconds(lambda: cti_icp(query))
     first, further, reference = [], [], []
@@ -90,7 +98,7 @@ def main() -> None:
             for f in range(args.fingers):
                 query, evidence, T_object_sensor = touch(e, g, f)
                 T_reference = T_object_sensor if T_reference is None else T_reference
-                seconds, belief = _seconds(lambda: update(view, views, belief, evidence, query.feature, query.opening,
+                seconds, belief = _seconds(lambda: update(view, surface, belief, evidence, query.feature, query.opening,
                                                           T_reference.inverse() @ T_object_sensor, settings))
                 (first if g == f == 0 else further).append(seconds)
                 reference.append(_seconds(lambda: cti_icp(query))[0])
@@ -102,8 +110,8 @@ def main() -> None:
             ["belief, each further touch", len(further), ms(further), ms(further, 90), None],
             ["CTI-ICP-5 (reference)", len(reference), ms(reference), ms(reference, 90), compile_cti_s]]
     print(format_table(["step", "calls", "median ms", "p90 ms", "first call s (compile)"], rows))
-    print(f"surface views of {len(view)} imprints (once per map): {views_s:.2f} s "
-          f"(first call, compiling: {views_first_s:.2f} s)")
+    print(f"map surface of {len(view)} imprints (once per map, host): {surface_s:.2f} s "
+          f"(first call: {surface_first_s:.2f} s); belief calibration: {'stored' if stored else 'none (default)'}")
     print(f"belief / CTI-ICP-5, median: first touch {ms(first) / ms(reference):.1f}x, "
           f"further touches {ms(further) / ms(reference):.1f}x")
     if args.json:
@@ -116,7 +124,8 @@ def main() -> None:
             "further_touch_ms": {"median": ms(further), "p90": ms(further, 90), "calls": len(further)},
             "cti_icp_5_ms": {"median": ms(reference), "p90": ms(reference, 90), "calls": len(reference)},
             "compile_s": {"belief": compile_belief_s, "cti_icp_5": compile_cti_s},
-            "surface_views_s": views_s, "surface_views_first_call_s": views_first_s,
+            "calibration": stored, "symmetries": 1 if symmetries is None else len(symmetries.wxyz_xyz),
+            "map_surface_s": surface_s, "map_surface_first_call_s": surface_first_s,
             "median_further_over_reference": statistics.median(further) / statistics.median(reference),
             "machine": machine_info()})
 

@@ -11,7 +11,9 @@ up to 0.5 mm and 1 degree of slip per frame, 200 frames per sequence). Every fra
   robot would before lifting the object: ``--belief-grasps`` earlier grasps of the object where
   it stands (both fingers; a new-grasps episode at the sequence's object placement, simulated
   with a seed of its own) and the sequence's first frame itself are fused by
-  :func:`tactojax.localize.update_belief`, the touches related by the kinematics;
+  :func:`tactojax.localize.update_belief` (against the map's surface,
+  :func:`tactojax.localize.build_map_surface`, with the object's symmetries), the touches
+  related by the kinematics;
 - **re-localizing every frame** (:class:`tactojax.localize.Localizer`).
 
 Reported per mode: position error of the sensor pose (mm) over all frames, over the frames
@@ -43,7 +45,7 @@ from tactojax.geometry import sensor_pose
 from tactojax.io import (DEFAULT_ENCODER, load_test_episodes, open_dataset, read_grasps, read_test_grasps,
                          resolve_encoder, resolve_shape_model, simulate_to_dataset)
 from tactojax.localize import (BeliefSettings, LocalizationMap, Localizer, Tracker, TrackingSettings,
-                               build_surface_views, empty_belief, touch_evidence, update_belief)
+                               build_map_surface, empty_belief, touch_evidence, update_belief)
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
@@ -105,7 +107,8 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
         placement = read_test_grasps(path, ["T_world_object"], object_id=name)["T_world_object"][:: grasps * 2]
         episodes_at[turn] = [episodes, placement, list(range(len(placement)))]
     view = LocalizationMap.from_tactile_map(tactile_map)
-    views = build_surface_views(view)
+    surface = build_map_surface(tactile_map)
+    symmetries = get_object(name).symmetry.transforms()
     settings = BeliefSettings()
     update = jax.jit(update_belief, static_argnames=("settings",))
     evidence_of = jax.jit(lambda h, m: touch_evidence(h, m, view.mm_per_px))
@@ -126,18 +129,19 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
             raise RuntimeError(f"episode {e} does not stand where sequence {sequence} starts")
         T_reference = jax.tree.map(lambda x: x[e, 0, 0], episodes.T_object_sensor)
         evidence = evidence_of(episodes.heightmaps[e, 0, 0], episodes.masks[e, 0, 0])
-        belief = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0])
+        belief = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0], view.features.shape[1],
+                              symmetries=symmetries)
         for g in range(grasps):
             for f in range(2):
                 T_touch = jax.tree.map(lambda x: x[e, g, f], episodes.T_object_sensor)
-                belief = update(view, views, belief, evidence_of(episodes.heightmaps[e, g, f], episodes.masks[e, g, f]),
+                belief = update(view, surface, belief, evidence_of(episodes.heightmaps[e, g, f], episodes.masks[e, g, f]),
                                 episodes.features[e, g, f], episodes.openings[e, g], T_reference.inverse() @ T_touch,
                                 settings)
         T_first = jaxlie.SE3(jnp.asarray(data["T_object_sensor"][row]))  # the kinematics, relative to the episode
         T_reference_first = T_reference.inverse() @ T_first
         heightmap, mask = observe(data["image"][row])
         feature = encode_images(encoder, data["image"][row][None], progress=False)[0]
-        belief = update(view, views, belief, evidence_of(heightmap, mask), jnp.asarray(feature),
+        belief = update(view, surface, belief, evidence_of(heightmap, mask), jnp.asarray(feature),
                         jnp.float32(data["opening_mm"][row]), T_reference_first, settings)
         starts[sequence] = np.asarray((belief.best @ T_reference_first).wxyz_xyz)
         confidence[sequence] = float(belief.probability_within())

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tactojax.cli._maps import is_symmetric, maps_and_query_encoder, object_symmetries
+from tactojax.cli._maps import is_symmetric, maps_and_query_encoder, object_symmetries, stored_calibration
 from tactojax.cli._table import format_table, write_json
 
 
@@ -19,7 +19,7 @@ def run_new_grasps(args) -> int:
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     model = resolve_shape_model(args.model)
     rows, payload, curves, calibrations = [], {"methods": methods, "test": args.test, "objects": {}}, {}, {}
-    for tactile_map in maps:
+    for path, tactile_map in zip(args.maps, maps):
         episodes, recorded_fingers = load_test_episodes(args.test, tactile_map.object_id, model, encoder)
         if args.fingers > recorded_fingers:
             raise ValueError(f"--fingers {args.fingers}: the test set records {recorded_fingers} finger per grasp "
@@ -35,14 +35,17 @@ def run_new_grasps(args) -> int:
         view = LocalizationMap.from_tactile_map(tactile_map)
         surface = build_map_surface(tactile_map) if "belief" in methods else None
         results = evaluate_new_grasps(view, surface, episodes, methods, fingers=args.fingers, symmetries=symmetries,
-                                      settings=BeliefSettings(), progress=True)
+                                      calibration=stored_calibration(path, args.encoder), settings=BeliefSettings(),
+                                      progress=True)
         summaries = [r.summary(symmetric=symmetric) for r in results]
         for r, s in zip(results, summaries):
             gap = s.get("calibration", {}).get("max_gap")
             rows.append([tactile_map.object_id, r.method, r.fingers, r.grasps if r.fused else "1 (each)", s["count"], s["median_rmse_mm"],
                          s["median_symmetric_rmse_mm"] if symmetric else "-",
                          *(f"{100 * s['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
-                         s["median_translation_mm"], s["median_rotation_deg"], "-" if gap is None else gap])
+                         s["median_translation_mm"], s["median_rotation_deg"], "-" if gap is None else gap,
+                         s.get("mean_nll_truth", "-"),
+                         f"{100 * s['coverage_90']:.0f} %" if "coverage_90" in s else "-"])
         fused = [(r, s) for r, s in zip(results, summaries) if r.fused]
         key = "median_symmetric_rmse_mm" if symmetric else "median_rmse_mm"
         curves[f"{tactile_map.object_id}, {args.fingers} finger{'s' * (args.fingers > 1)}"] = {
@@ -58,7 +61,7 @@ def run_new_grasps(args) -> int:
             "results": summaries, "calibration": calibrations.get(tactile_map.object_id)}
     print(format_table(["object", "method", "fingers", "grasps", "count", "median RMSE (mm)", "symmetric (mm)",
                         "<= 1 mm", "<= 2 mm", "<= 5 mm", "translation (mm)", "rotation (deg)",
-                        "calibration gap"], rows))
+                        "calibration gap", "NLL of truth", "90 % set holds truth"], rows))
     if calibrations:
         print("\nbelief calibration: predicted P(error <= 2 mm) against the observed share, per bin")
         cal_rows = [[name, f"{b['bin'][0]:.1f}-{b['bin'][1]:.1f}", b["count"],

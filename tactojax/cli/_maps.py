@@ -51,6 +51,26 @@ def camera_source(text: str) -> int | str:
     return int(text) if text.isdigit() else text
 
 
+def stored_calibration(path, encoder_name: str | None):
+    """The belief calibration a map's header stores (``tactojax calibrate-belief``), or None
+    (uncalibrated: said on stderr) when it has none or it was fit with another encoder."""
+    import sys
+
+    from tactojax.io import DEFAULT_ENCODER, tactile_map_metadata
+    from tactojax.localize import calibration_from_json
+
+    fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+    if fit is None:
+        print(f"note: {path} holds no belief calibration (run `tactojax calibrate-belief`); its P(within 2 mm) "
+              "is not calibrated", file=sys.stderr)
+        return None
+    if fit.get("encoder") != (encoder_name or DEFAULT_ENCODER):
+        print(f"note: {path}'s belief calibration was fit with the encoder {fit.get('encoder')!r}, not "
+              f"{encoder_name or DEFAULT_ENCODER!r}: not used", file=sys.stderr)
+        return None
+    return calibration_from_json(fit)
+
+
 def object_symmetries(object_id: str):
     """The catalog object's symmetry group (SE3 batch), or None for objects outside the catalog."""
     from tactojax.objects import CATALOG, get_object

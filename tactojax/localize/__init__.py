@@ -15,6 +15,12 @@ from tactojax.localize._belief import BeliefSettings as BeliefSettings
 from tactojax.localize._belief import PoseBelief as PoseBelief
 from tactojax.localize._belief import empty_belief as empty_belief
 from tactojax.localize._belief import update_belief as update_belief
+from tactojax.localize._calibrate import BeliefRecord as BeliefRecord
+from tactojax.localize._calibrate import calibration_from_json as calibration_from_json
+from tactojax.localize._calibrate import calibration_to_json as calibration_to_json
+from tactojax.localize._calibrate import fit_calibration as fit_calibration
+from tactojax.localize._calibrate import predict_within as predict_within
+from tactojax.localize._calibrate import record_beliefs as record_beliefs
 from tactojax.localize._candidates import CandidateGrid as CandidateGrid
 from tactojax.localize._consistency import Consistency as Consistency
 from tactojax.localize._consistency import consistency as consistency
@@ -94,6 +100,12 @@ __all__ = [
     "MapSurface",
     "SurfaceSettings",
     "BeliefCalibration",
+    "BeliefRecord",
+    "calibration_from_json",
+    "calibration_to_json",
+    "fit_calibration",
+    "predict_within",
+    "record_beliefs",
     "TestEpisodes",
     "TouchEvidence",
     "build_map_surface",

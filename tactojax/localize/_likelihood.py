@@ -48,6 +48,8 @@ class LikelihoodSettings:
     """Depth range of an outlier or of a point over unknown surface (uniform density), mm."""
     margin_mm: float = 0.3
     """A surface must press a gel deeper than this to count against a no-contact pixel, mm."""
+    interpolate: bool = True
+    """Read the surface trilinearly (False: the nearest grid cell, 8x fewer reads, for screening)."""
     violation: float = 0.05
     """Probability of a no-contact pixel where the map's surface presses the gel (or of
     contact in space the map saw free)."""
@@ -110,7 +112,7 @@ def point_log_likelihoods(
     rotation, translation = T_object_sensor.rotation().as_matrix(), T_object_sensor.translation()
     count = evidence.contact.shape[0]
     points = matvec(rotation, jnp.concatenate([evidence.contact, evidence.free])) + translation
-    distance, known = surface.signed_distance(points)
+    distance, known = surface.signed_distance(points, interpolate=settings.interpolate)
     sigma, uniform = settings.sigma_mm, 1.0 / settings.range_mm
     gauss = jnp.exp(-0.5 * (distance[:count] / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
     fit = jnp.log((1 - settings.outlier) * gauss + settings.outlier * uniform)

@@ -249,7 +249,7 @@ def localize(
     """
     if parse_method(method).kind == "belief":
         raise ValueError("localize() runs one-shot methods; the belief keeps state across touches: use "
-                         "update_belief with build_surface_views (tactojax.localize)")
+                         "update_belief with build_map_surface (tactojax.localize)")
     if not isinstance(query.mask, jax.core.Tracer) and not np.any(np.asarray(query.mask)):
         raise ValueError("the query shows no contact (its mask is empty): there is nothing to localize")
     view = as_localization_map(tactile_map)

@@ -74,6 +74,10 @@ class EpisodeErrors:
     """(Q,) its rotation error, degrees."""
     probability: np.ndarray
     """(Q,) predicted P(rmse <= 2 mm) (the belief; NaN for the other methods)."""
+    nll_truth: np.ndarray
+    """(Q,) negative log of the belief's mass within 2 mm of the truth (NaN for the other methods)."""
+    covered: np.ndarray
+    """(Q,) whether the belief's 90 % credible set holds the truth (within 2 mm; False for the others)."""
 
     def summary(self, *, symmetric: bool = False) -> dict:
         """JSON-ready medians, shares within 1/2/5 mm and calibration (on the symmetry-aware
@@ -88,6 +92,8 @@ class EpisodeErrors:
                "median_rotation_deg": float(np.median(self.rotation))}
         if np.all(np.isfinite(self.probability)):
             out["calibration"] = calibration(self.probability, error <= WITHIN_MM)
+            out["mean_nll_truth"] = float(np.mean(self.nll_truth))
+            out["coverage_90"] = float(np.mean(self.covered))
         return out
 
 
@@ -136,15 +142,16 @@ def _single_touches(view: LocalizationMap, surface: MapSurface | None, episodes:
                                  calibration=calibration)
             belief = update_belief(view, surface, empty, evidence, feature, opening, jaxlie.SE3.identity(), settings)
             estimate, probability = belief.best, belief.probability_within()
+            nll, covered = belief.truth_scores(T)
         else:
             query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
             estimate = localize_query(jax.random.key(0), view, query, method,
                                       points_per_query=points_per_query).T_object_sensor
-            probability = jnp.float32(jnp.nan)
+            probability, nll, covered = jnp.float32(jnp.nan), jnp.float32(jnp.nan), jnp.bool_(False)
         one_touch = lambda x: x[None]  # noqa: E731
         errors = _errors(jax.tree.map(one_touch, T), jax.tree.map(one_touch, estimate), m[None], c[None],
                          jnp.ones(1, bool), symmetries)
-        return (*errors, probability)
+        return (*errors, probability, nll, covered)
 
     return jax.lax.map(lambda args: one(*args), (heightmaps, masks, features, openings, T_true, mean, covariance),
                        batch_size=8)
@@ -177,7 +184,7 @@ def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpis
         valid = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
         errors = _errors(T_true, T_estimate, episode.cloud_mean[:, :fingers].reshape(-1, 3),
                          episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, symmetries)
-        return belief, (*errors, belief.probability_within())
+        return belief, (*errors, belief.probability_within(), *belief.truth_scores(T_reference))
 
     _, out = jax.lax.scan(grasp, belief, jnp.arange(grasps))
     return out
@@ -237,7 +244,7 @@ def evaluate_new_grasps(
             episode = jax.tree.map(lambda x: x[e], episodes)
             per_episode.append(jax.device_get(_fused_episode(view, surface, episode, symmetries, calibration, fingers,
                                                              settings)))
-        stacked = [np.stack([p[i] for p in per_episode]) for i in range(5)]  # (E, G) each
+        stacked = [np.stack([p[i] for p in per_episode]) for i in range(7)]  # (E, G) each
         for g in range(grasps):
             results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))
     return results

@@ -38,6 +38,7 @@ SMALLER = {
     "train-features": ["--steps", "2", "--batch-size", "4", "--no-progress"],
     "record": ["--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0"],
     "localize-live": ["--frames", "3"],
+    "calibrate-belief": ["--rounds", "1"],
 }
 """Flags appended to each command's README line: small grids, few touches and steps."""
 
@@ -65,6 +66,8 @@ SLOW = {
     "eval-localization": "leave-one-out with four methods: 44 s for 3 touches a map, mostly compiling",
     "train-features": "compiles contrastive training: 21 s for 2 steps",
     "localize-live": "compiles the whole touch program once: 9 s for 3 frames",
+    "calibrate-belief": "compiles the belief update and runs it on every calibration touch: about 60 s; "
+                        "tests/cli/test_belief_cli.py runs it on a small map",
 }
 """Commands skipped unless TACTOJAX_README_ALL=1, and why (seconds on 2 quiet cores with the SMALLER
 flags). All 25 lines took 3.7 min that way; the others take 49 s."""

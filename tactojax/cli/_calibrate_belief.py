@@ -1,0 +1,80 @@
+"""``tactojax calibrate-belief MAP... --grasps DIR``: fit the belief's likelihood scales on the map's own grasps."""
+
+from __future__ import annotations
+
+from tactojax.cli._map import DEFAULT_MODEL
+from tactojax.cli._maps import add_encoder_argument, object_symmetries
+from tactojax.cli._table import format_table, write_json
+
+
+def add_parser(commands) -> None:
+    parser = commands.add_parser(
+        "calibrate-belief", help="fit the pose belief's likelihood scales on calibration grasps",
+        description="Run the pose belief over calibration grasps of each map's object (episodes of grasps "
+                    "at known poses: `tactojax simulate OBJECT --protocol grasps --seed S`, with a seed of "
+                    "their own, never the test set's) and fit its temperature, appearance weight and "
+                    "fusion exponent so that its P(within 2 mm) is calibrated; the fit is stored in the "
+                    "map's header, where every command that runs the belief reads it.")
+    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` (rewritten in place)")
+    parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
+                        help="new-grasps datasets holding each map's object (`--protocol grasps`)")
+    parser.add_argument("--fingers", type=int, choices=[1, 2], default=2,
+                        help="fingers fused per grasp, as the robot will (default 2)")
+    parser.add_argument("--rounds", type=int, default=2,
+                        help="fits, each running the belief with the previous one's scales (they decide which "
+                             "hypotheses it keeps; default 2)")
+    parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model for the images (default {DEFAULT_MODEL})")
+    add_encoder_argument(parser)
+    parser.add_argument("--json", metavar="PATH", help="write the fits as JSON")
+    parser.set_defaults(run=run)
+
+
+def _episodes_of(object_id: str, directories, model, encoder):
+    """The calibration episodes of ``object_id`` from the first directory that holds it."""
+    from tactojax.io import load_test_episodes, read_test_grasps
+
+    for directory in directories:
+        try:
+            read_test_grasps(directory, ["opening_mm"], object_id=object_id)
+        except ValueError:
+            continue
+        return load_test_episodes(directory, object_id, model, encoder)
+    raise ValueError(f"no calibration grasps of {object_id!r} in {list(directories)} "
+                     f"(make them with `tactojax simulate {object_id} --protocol grasps --seed S --out DIR`)")
+
+
+def run(args) -> int:
+    from tactojax.cli._maps import maps_and_query_encoder
+    from tactojax.io import DEFAULT_ENCODER, resolve_shape_model, save_tactile_map, tactile_map_metadata
+    from tactojax.localize import (LocalizationMap, build_map_surface, calibration_to_json, fit_calibration,
+                                   record_beliefs)
+
+    maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
+    if args.rounds < 1:
+        raise ValueError(f"--rounds must be at least 1, got {args.rounds}")
+    model = resolve_shape_model(args.model)
+    rows, payload = [], {}
+    for path, tactile_map in zip(args.maps, maps):
+        episodes, recorded = _episodes_of(tactile_map.object_id, args.grasps, model, encoder)
+        if args.fingers > recorded:
+            raise ValueError(f"--fingers {args.fingers}: the calibration grasps of {tactile_map.object_id} "
+                             f"record {recorded} finger per grasp (simulate them with --fingers 2)")
+        view, surface = LocalizationMap.from_tactile_map(tactile_map), build_map_surface(tactile_map)
+        calibration = None
+        for _ in range(args.rounds):
+            records = record_beliefs(view, surface, episodes, fingers=args.fingers, calibration=calibration,
+                                     symmetries=object_symmetries(tactile_map.object_id), progress=True)
+            calibration, report = fit_calibration(records)
+        report.update(encoder=args.encoder or DEFAULT_ENCODER, fingers=args.fingers, episodes=int(episodes.openings.shape[0]),
+                      grasps=list(args.grasps))
+        metadata = tactile_map_metadata(path).get("metadata", {})
+        metadata["belief_calibration"] = report
+        save_tactile_map(path, tactile_map, metadata=metadata)
+        payload[tactile_map.object_id] = report
+        rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
+                     report["loss"], f"{100 * report['accuracy']:.0f} %"])
+    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "log loss",
+                        "best within 2 mm"], rows))
+    if args.json:
+        write_json(args.json, payload)
+    return 0

@@ -1,0 +1,199 @@
+"""Calibrating the belief on the map's own touches: the scales of its likelihood, fit by what happened.
+
+A belief reports P(its best pose is within 2 mm of the truth). That number is only useful if it
+is calibrated: of the beliefs that say 0.8, 80 % must be within 2 mm. The raw likelihood is not
+(neighbouring pixels' errors are correlated, both fingers of a grasp and successive grasps are
+not independent), so its scales (:class:`~tactojax.localize.BeliefCalibration`: a temperature
+on the geometry, a weight on the appearance similarity, and an exponent that discounts the
+evidence of several touches) are fit on *calibration episodes*: grasps of the map's own object
+at known poses (``tactojax simulate OBJECT --protocol grasps`` with a seed of their own, or
+recorded grasps of the real object), never the test set.
+
+:func:`record_beliefs` runs the belief over the calibration episodes touch by touch and keeps,
+after every touch, what the fit needs: every hypothesis's summed cues, which hypotheses are the
+same pose (within 2 mm up to the object's symmetry) and which are the truth.
+:func:`fit_calibration` then chooses the scales that minimise the negative log-likelihood of
+what happened (the best hypothesis within 2 mm of the truth, or not) under the predicted
+P(within 2 mm), over a grid (three scalars; the data are a few hundred beliefs).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+from jaxtyping import Array, Bool, Float, Int
+from tqdm.auto import tqdm
+
+from tactojax.localize._belief import (WITHIN_MM, BeliefCalibration, BeliefSettings, belief_terms, empty_belief,
+                                       hypothesis_distances, update_belief)
+from tactojax.localize._likelihood import touch_evidence
+from tactojax.localize._map import LocalizationMap
+from tactojax.localize._new_grasps import TestEpisodes
+from tactojax.localize._surface import MapSurface
+
+TEMPERATURES = tuple(float(t) for t in np.geomspace(0.002, 1.0, 28))
+"""Candidate temperatures of the geometric log-likelihood."""
+APPEARANCE_WEIGHTS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+"""Candidate weights of the appearance similarity (per touch)."""
+FUSION_EXPONENTS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
+"""Candidate discounts of several touches' evidence."""
+
+
+@struct.dataclass
+class BeliefRecord:
+    """What calibration needs of one belief (after one touch of a calibration episode)."""
+
+    geometry: Float[Array, "M"]
+    """Every hypothesis's geometric log-likelihood, summed over the belief's touches."""
+    similarity: Float[Array, "M"]
+    """Its appearance similarity, summed over the touches."""
+    valid: Bool[Array, "M"]
+    """Which hypothesis slots hold one."""
+    touches: Int[Array, ""]
+    """How many touches the belief holds."""
+    same_pose: Bool[Array, "M M"]
+    """Hypotheses within 2 mm of each other, up to the object's symmetry."""
+    truth: Bool[Array, "M"]
+    """Hypotheses within 2 mm of the true pose, up to the object's symmetry."""
+
+
+@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
+def _record_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
+                    calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> BeliefRecord:
+    """(G * fingers + G - 1,) records of one episode: touch by touch, then every later grasp's
+    first finger alone."""
+    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
+    touches = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]),
+                           (episode.heightmaps, episode.masks, episode.features, episode.T_object_sensor))
+    openings = jnp.repeat(episode.openings, fingers)
+    first = touch_evidence(episode.heightmaps[0, 0], episode.masks[0, 0], view.mm_per_px)
+    belief = empty_belief(settings, first.contact.shape[0], first.free.shape[0], episode.features.shape[-1],
+                          symmetries=symmetries, calibration=calibration)
+
+    def touch(belief, inputs, T_reference=T_reference):
+        heightmap, mask, feature, T_object_sensor, opening = inputs
+        evidence = touch_evidence(heightmap, mask, view.mm_per_px)
+        belief = update_belief(view, surface, belief, evidence, feature, opening,
+                               T_reference.inverse() @ T_object_sensor, settings)
+        geometry, similarity = jax.vmap(lambda T: belief_terms(view, surface, belief, T, settings))(
+            belief.T_object_reference)
+        same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
+        truth = hypothesis_distances(belief, T_reference, symmetric=True)
+        valid = jnp.isfinite(belief.log_weights)
+        return belief, BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
+                                    same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
+
+    def alone(inputs):  # a fresh belief from one touch, its own reference
+        return touch(belief, inputs, T_reference=inputs[3])[1]
+
+    _, fused = jax.lax.scan(touch, belief, (*touches, openings))
+    # Every later grasp's first finger alone, as a single touch is also used (and evaluated):
+    # the fit then sees as many one-touch beliefs as a robot meets.
+    later = (*jax.tree.map(lambda x: x[1:, 0], (episode.heightmaps, episode.masks, episode.features,
+                                                episode.T_object_sensor)), episode.openings[1:])
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fused, jax.lax.map(alone, later))
+
+
+def record_beliefs(
+    view: LocalizationMap,
+    surface: MapSurface,
+    episodes: TestEpisodes,
+    *,
+    fingers: int = 2,
+    symmetries: jaxlie.SE3 | None = None,
+    calibration: BeliefCalibration | None = None,
+    settings: BeliefSettings = BeliefSettings(),
+    progress: bool = False,
+) -> BeliefRecord:
+    """Run the belief over calibration episodes and keep what :func:`fit_calibration` needs.
+
+    Args:
+        view, surface: the map and its surface.
+        episodes: calibration grasps of the map's object (E episodes of G grasps).
+        fingers: fingers per grasp (touches: G x fingers per episode, fused in order).
+        symmetries: (S,) the object's symmetry transforms (default: the identity).
+        calibration: the scales the belief runs with (they decide which hypotheses it keeps;
+            default: uncalibrated).
+        settings: belief parameters.
+        progress: show a progress bar.
+
+    Returns:
+        (E * (G * fingers + G - 1),) records, as numpy arrays: every episode's beliefs touch by
+        touch, then each of its later grasps' first-finger touch alone.
+    """
+    symmetries = jaxlie.SE3.identity((1,)) if symmetries is None else symmetries
+    calibration = BeliefCalibration.default() if calibration is None else calibration
+    per_episode = [jax.device_get(_record_episode(view, surface, jax.tree.map(lambda x: x[e], episodes), symmetries,
+                                                  calibration, fingers, settings))
+                   for e in tqdm(range(episodes.openings.shape[0]), desc="calibration episodes", disable=not progress)]
+    return jax.tree.map(lambda *x: np.concatenate(x), *per_episode)
+
+
+def predict_within(records: BeliefRecord, calibration: BeliefCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) P(best within 2 mm) that the beliefs of ``records`` report under ``calibration``, and
+    (N,) whether their best hypothesis was within 2 mm of the truth (numpy)."""
+    temperature, appearance, exponent = (float(x) for x in (calibration.temperature, calibration.appearance,
+                                                            calibration.fusion_exponent))
+    score = temperature * records.geometry + appearance * records.similarity
+    score = np.where(records.valid, score, -np.inf)
+    scaled = np.maximum(records.touches, 1)[:, None] ** -exponent * score
+    scaled = scaled - scaled.max(axis=1, keepdims=True)
+    weights = np.where(records.valid, np.exp(scaled), 0.0)
+    weights = weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-30)
+    best = np.argmax(score, axis=1)
+    rows = np.arange(len(best))
+    probability = np.sum(np.where(records.same_pose[rows, best], weights, 0.0), axis=1)
+    return probability, records.truth[rows, best]
+
+
+def within_log_loss(probability: np.ndarray, happened: np.ndarray) -> float:
+    """Mean negative log-likelihood of what happened under the predicted probabilities."""
+    p = np.clip(probability, 1e-4, 1 - 1e-4)
+    return float(-np.mean(np.where(happened, np.log(p), np.log1p(-p))))
+
+
+def fit_calibration(records: BeliefRecord) -> tuple[BeliefCalibration, dict]:
+    """The scales that minimise :func:`within_log_loss` over ``records`` (a grid search over
+    :data:`TEMPERATURES` x :data:`APPEARANCE_WEIGHTS` x :data:`FUSION_EXPONENTS`).
+
+    Returns:
+        the fitted :class:`BeliefCalibration` and a JSON-ready report (``loss``, ``accuracy``:
+        the share of best hypotheses within 2 mm, ``beliefs``: how many records).
+
+    Raises:
+        ValueError: no record holds a hypothesis (nothing to fit).
+    """
+    usable = records.valid.any(axis=1)
+    if not usable.any():
+        raise ValueError("no calibration touch produced a hypothesis: the calibration grasps do not touch the map")
+    records = jax.tree.map(lambda x: x[usable], records)
+    best, best_loss = None, np.inf
+    for temperature, appearance, exponent in itertools.product(TEMPERATURES, APPEARANCE_WEIGHTS, FUSION_EXPONENTS):
+        calibration = BeliefCalibration(temperature=np.float32(temperature), appearance=np.float32(appearance),
+                                        fusion_exponent=np.float32(exponent))
+        loss = within_log_loss(*predict_within(records, calibration))
+        if loss < best_loss - 1e-9:
+            best, best_loss = calibration, loss
+    _, happened = predict_within(records, best)
+    fitted = jax.tree.map(jnp.float32, best)
+    return fitted, {"loss": best_loss, "accuracy": float(np.mean(happened)), "beliefs": int(usable.sum()),
+                    **calibration_to_json(fitted)}
+
+
+def calibration_to_json(calibration: BeliefCalibration) -> dict:
+    """The scales as a JSON-ready dict (what a map's header stores)."""
+    return {"temperature": float(calibration.temperature), "appearance": float(calibration.appearance),
+            "fusion_exponent": float(calibration.fusion_exponent)}
+
+
+def calibration_from_json(values: dict) -> BeliefCalibration:
+    """The inverse of :func:`calibration_to_json`."""
+    return BeliefCalibration(temperature=jnp.float32(values["temperature"]),
+                             appearance=jnp.float32(values["appearance"]),
+                             fusion_exponent=jnp.float32(values["fusion_exponent"]))

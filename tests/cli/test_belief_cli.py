@@ -1,0 +1,66 @@
+"""The pose belief from the command line: ``calibrate-belief``, then ``eval-localization --test``."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tactojax.cli import main
+from tactojax.io import save_shape_model, save_tactile_map, tactile_map_metadata
+
+GRASPS = ["--protocol", "grasps", "--grasps-per-episode", "2", "--fingers", "2", "--scale", "0.25",
+          "--turns-deg", "0", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory, cylinder_map, lookup_model, tiny_encoder_path):
+    """The cylinder's map calibrated on grasps of its own (seed 11), and a separate test set (seed 12)."""
+    folder = tmp_path_factory.mktemp("belief")
+    map_path = str(save_tactile_map(folder / "cylinder.npz", cylinder_map))
+    model = str(save_shape_model(folder / "lookup.msgpack", lookup_model))
+    for name, seed, episodes in (("calibration", 11, 4), ("test", 12, 3)):
+        assert main(["simulate", "cylinder", "--out", str(folder / name), *GRASPS, "--episodes", str(episodes),
+                     "--seed", str(seed)]) == 0
+    fits = folder / "fits.json"
+    assert main(["calibrate-belief", map_path, "--grasps", str(folder / "calibration"), "--model", model,
+                 "--encoder", str(tiny_encoder_path), "--rounds", "1", "--json", str(fits)]) == 0
+    return folder, map_path, model, json.loads(fits.read_text())
+
+
+def test_calibration_is_stored_with_the_map(calibrated, capsys):
+    _, map_path, _, fits = calibrated
+    stored = tactile_map_metadata(map_path)["metadata"]["belief_calibration"]
+    assert stored == fits["cylinder"]
+    # Per episode: a belief after every touch (grasps x fingers), and the second grasp's first finger alone.
+    assert stored["beliefs"] == 4 * (2 * 2 + 1)
+    assert stored["temperature"] > 0 and stored["fusion_exponent"] >= 0 and np.isfinite(stored["loss"])
+    assert 0.0 <= stored["accuracy"] <= 1.0
+
+
+def test_new_grasps_fuse_with_the_calibrated_belief(calibrated, tiny_encoder_path, tmp_path, capsys):
+    folder, map_path, model, _ = calibrated
+    report = tmp_path / "new.json"
+    assert main(["eval-localization", map_path, "--test", str(folder / "test"), "--fingers", "2", "--methods",
+                 "cti-icp-2,belief", "--model", model, "--encoder", str(tiny_encoder_path), "--json", str(report),
+                 "--figure", str(tmp_path / "new.png")]) == 0
+    captured = capsys.readouterr()
+    assert "holds no belief calibration" not in captured.err
+    assert "belief calibration: predicted P(error <= 2 mm)" in captured.out
+    result = json.loads(report.read_text())["objects"]["cylinder"]
+    rows = {(r["method"], r["grasps"], r["fused"]): r for r in result["results"]}
+    assert rows[("cti-icp-2", 1, False)]["count"] == 3 * 2 and rows[("belief", 1, False)]["count"] == 3 * 2
+    assert rows[("belief", 1, True)]["count"] == 3 and rows[("belief", 2, True)]["count"] == 3
+    for row in result["results"]:
+        assert np.isfinite(row["median_rmse_mm"]) and row["median_symmetric_rmse_mm"] <= row["median_rmse_mm"] + 1e-6
+    bins = result["calibration"]["bins"]
+    assert sum(b["count"] for b in bins) == 3 * 2 + 3 * 2  # single touches and fused episodes, every grasp count
+    assert all(0.0 <= b["predicted"] <= 1.0 for b in bins if b["count"])
+
+
+def test_calibration_needs_the_objects_grasps(calibrated, tiny_encoder_path, tmp_path, capsys):
+    folder, map_path, model, _ = calibrated
+    other = tmp_path / "other"
+    assert main(["simulate", "cuboid", "--out", str(other), *GRASPS, "--episodes", "1", "--seed", "3"]) == 0
+    assert main(["calibrate-belief", map_path, "--grasps", str(other), "--model", model, "--encoder",
+                 str(tiny_encoder_path)]) == 2
+    assert "no calibration grasps of 'cylinder'" in capsys.readouterr().err

@@ -1,0 +1,53 @@
+"""Calibrating the belief: the fit recovers the scales that generated what happened."""
+
+import numpy as np
+import pytest
+
+from tactojax.localize import BeliefCalibration, BeliefRecord, fit_calibration, predict_within
+
+
+def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12):
+    """Beliefs whose truth is drawn from the calibrated weights themselves: P(within 2 mm) of a
+    perfectly calibrated belief, every hypothesis a distinct pose."""
+    touches = rng.integers(1, 7, count)
+    geometry = rng.normal(0.0, 40.0, (count, hypotheses)) * touches[:, None]
+    scaled = touches[:, None] ** -exponent * temperature * geometry
+    weights = np.exp(scaled - scaled.max(axis=1, keepdims=True))
+    weights /= weights.sum(axis=1, keepdims=True)
+    truth_index = np.array([rng.choice(hypotheses, p=w) for w in weights])
+    truth = np.arange(hypotheses)[None, :] == truth_index[:, None]
+    return BeliefRecord(geometry=geometry, similarity=np.zeros_like(geometry), valid=np.ones_like(truth),
+                        touches=touches, same_pose=np.broadcast_to(np.eye(hypotheses, dtype=bool),
+                                                                   (count, hypotheses, hypotheses)), truth=truth)
+
+
+@pytest.mark.parametrize("temperature, exponent", [(0.02, 0.5), (0.1, 0.0)])
+def test_fit_recovers_a_known_temperature(temperature, exponent):
+    records = _synthetic_records(np.random.default_rng(1), temperature, exponent)
+    fitted, report = fit_calibration(records)
+    assert float(fitted.temperature) == pytest.approx(temperature, rel=0.25)
+    assert float(fitted.fusion_exponent) == pytest.approx(exponent, abs=0.25)
+    assert float(fitted.appearance) == 0.0 or report["loss"] > 0
+    # Calibrated on its own data: the predicted probabilities match what happened, bin by bin.
+    probability, happened = predict_within(records, fitted)
+    bins = np.digitize(probability, [0.2, 0.4, 0.6, 0.8])
+    for b in range(5):
+        if np.sum(bins == b) >= 100:
+            assert abs(probability[bins == b].mean() - happened[bins == b].mean()) < 0.06
+
+
+def test_an_overconfident_temperature_is_worse_than_the_fit():
+    records = _synthetic_records(np.random.default_rng(2), 0.02, 0.0)
+    fitted, report = fit_calibration(records)
+    hot = BeliefCalibration(temperature=np.float32(1.0), appearance=np.float32(0.0), fusion_exponent=np.float32(0.0))
+    probability, happened = predict_within(records, hot)
+    assert probability.mean() > happened.mean() + 0.2  # overconfident
+    fitted_probability, _ = predict_within(records, fitted)
+    assert abs(fitted_probability.mean() - happened.mean()) < 0.03
+
+
+def test_nothing_to_fit_is_a_clear_error():
+    records = _synthetic_records(np.random.default_rng(3), 0.1, 0.0, count=5)
+    records = records.replace(valid=np.zeros_like(records.valid))
+    with pytest.raises(ValueError, match="no calibration touch"):
+        fit_calibration(records)
