@@ -65,8 +65,8 @@ def run(args) -> int:
             records = record_beliefs(view, surface, episodes, fingers=args.fingers, calibration=calibration,
                                      symmetries=object_symmetries(tactile_map.object_id), progress=True)
             calibration, report = fit_calibration(records)
-        report.update(encoder=args.encoder or DEFAULT_ENCODER, fingers=args.fingers, episodes=int(episodes.openings.shape[0]),
-                      grasps=list(args.grasps))
+        report.update(encoder=args.encoder or DEFAULT_ENCODER, fingers=args.fingers,
+                      episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report
         save_tactile_map(path, tactile_map, metadata=metadata)

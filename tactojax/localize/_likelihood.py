@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 from flax import struct
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
 from tactojax.geometry import pixel_grid
 from tactojax.localize._consistency import FREE_HEIGHT_MM
