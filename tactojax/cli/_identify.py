@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from tactojax.cli._map import DEFAULT_MODEL
 from tactojax.cli._maps import add_encoder_argument, load_maps_with_features
 from tactojax.cli._table import format_table, write_json
 
@@ -16,6 +17,13 @@ def add_parser(commands) -> None:
     add_encoder_argument(parser)
     parser.add_argument("--figure", metavar="PNG", default="identification.png", help="confusion-matrix figure")
     parser.add_argument("--json", metavar="PATH", help="write the metrics as JSON")
+    new = parser.add_argument_group("new grasps (instead of leave-one-out)")
+    new.add_argument("--test", nargs="+", metavar="DIR",
+                     help="new-grasps test sets (`tactojax simulate OBJECT --protocol grasps`) of objects among the "
+                          "maps: each episode's grasps fused by every map's pose belief, P(object) from their "
+                          "likelihoods, top-1 after k = 1..K grasps")
+    new.add_argument("--fingers", type=int, choices=[1, 2], default=2, help="fingers fused per grasp (default 2)")
+    new.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model for the test images (default {DEFAULT_MODEL})")
     parser.set_defaults(run=run)
 
 
@@ -25,6 +33,8 @@ def run(args) -> int:
 
     if len(args.maps) < 2:
         raise ValueError("identification needs the maps of at least two objects")
+    if args.test:
+        return run_new_grasps(args)
     maps, _ = load_maps_with_features(args.maps, args.encoder)
     result = evaluate_identification(maps, progress=True)
     summary = result.summary()
@@ -38,4 +48,48 @@ def run(args) -> int:
     print(f"figure: {args.figure}")
     if args.json:
         write_json(args.json, summary)
+    return 0
+
+
+def run_new_grasps(args) -> int:
+    """``identify MAP... --test DIR...``: P(object) from every map's belief over each episode."""
+    import numpy as np
+
+    from tactojax.cli._maps import maps_and_query_encoder, object_symmetries, stored_calibration
+    from tactojax.io import load_test_episodes, read_test_grasps, resolve_shape_model
+    from tactojax.localize import (LocalizationMap, build_map_surface, calibration_to_json, identify_episodes,
+                                   shared_calibration)
+
+    maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
+    names = [m.object_id for m in maps]
+    model = resolve_shape_model(args.model)
+    catalog = [(LocalizationMap.from_tactile_map(m), build_map_surface(m), object_symmetries(m.object_id))
+               for m in maps]
+    calibration = shared_calibration([stored_calibration(path, args.encoder) for path in args.maps])
+    correct, probability = {}, {}  # object -> (E, G) arrays
+    for directory in args.test:
+        for name in sorted(set(read_test_grasps(directory, ["opening_mm"])["object_id"].tolist())):
+            if name not in names:
+                raise ValueError(f"the test set {directory} holds {name!r}, which none of the maps is ({names})")
+            episodes, recorded = load_test_episodes(directory, name, model, encoder)
+            if args.fingers > recorded:
+                raise ValueError(f"--fingers {args.fingers}: {directory} records {recorded} finger per grasp")
+            p = identify_episodes(catalog, episodes, fingers=args.fingers, calibration=calibration, progress=True)
+            correct[name] = np.argmax(p, axis=-1) == names.index(name)
+            probability[name] = p[..., names.index(name)]
+    grasps = min(c.shape[1] for c in correct.values())
+    rows, results = [], []
+    for k in range(grasps):
+        hits = np.concatenate([c[:, k] for c in correct.values()])
+        true_p = np.concatenate([p[:, k] for p in probability.values()])
+        results.append({"grasps": k + 1, "fingers": args.fingers, "count": int(len(hits)),
+                        "top1": float(np.mean(hits)), "mean_probability_of_truth": float(np.mean(true_p)),
+                        "per_object_top1": {n: float(np.mean(c[:, k])) for n, c in correct.items()}})
+        rows.append([k + 1, args.fingers, len(hits), f"{100 * np.mean(hits):.1f} %", float(np.mean(true_p)),
+                     *(f"{100 * np.mean(c[:, k]):.0f} %" for c in correct.values())])
+    print(f"identification among {len(names)} objects, P(object) from every map's pose belief")
+    print(format_table(["grasps", "fingers", "episodes", "top-1", "mean P(true object)", *correct], rows))
+    if args.json:
+        write_json(args.json, {"objects": names, "test": args.test, "calibration": calibration_to_json(calibration),
+                               "results": results})
     return 0

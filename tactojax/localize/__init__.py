@@ -45,6 +45,8 @@ from tactojax.localize._icp import fit_quality as fit_quality
 from tactojax.localize._icp import icp as icp
 from tactojax.localize._icp import robust_weights as robust_weights
 from tactojax.localize._identify import IdentificationResult as IdentificationResult
+from tactojax.localize._identify_episodes import identify_episodes as identify_episodes
+from tactojax.localize._identify_episodes import shared_calibration as shared_calibration
 from tactojax.localize._identify import MapLibrary as MapLibrary
 from tactojax.localize._identify import evaluate_identification as evaluate_identification
 from tactojax.localize._identify import identify as identify
@@ -153,6 +155,8 @@ __all__ = [
     "fit_quality",
     "icp",
     "identify",
+    "identify_episodes",
+    "shared_calibration",
     "localize",
     "localize_query",
     "map_query",

@@ -139,6 +139,10 @@ class PoseBelief:
     """(S,) object-frame transforms that map the object onto itself (identity first)."""
     calibration: BeliefCalibration
     """The likelihood's scales."""
+    log_evidence: Float[Array, ""]
+    """log of the summed (unnormalised) likelihoods of the hypotheses: how well this map
+    explains the touches (-inf before any). Comparable between maps whose beliefs share one
+    calibration: P(object) is their softmax (:func:`~tactojax.localize.identify_episodes`)."""
 
     @property
     def probabilities(self) -> Float[Array, "M"]:
@@ -233,7 +237,8 @@ def empty_belief(settings: BeliefSettings, contact_points: int, free_points: int
                       features=jnp.zeros((slots, feature_dim)),
                       T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
                       symmetries=jaxlie.SE3.identity((1,)) if symmetries is None else symmetries,
-                      calibration=BeliefCalibration.default() if calibration is None else calibration)
+                      calibration=BeliefCalibration.default() if calibration is None else calibration,
+                      log_evidence=jnp.float32(-jnp.inf))
 
 
 def _take(tree, index):
@@ -442,9 +447,11 @@ def update_belief(
     scores = jnp.where(jnp.isfinite(scores), scores, -jnp.inf)
     poses, kept = _keep_distinct(belief, pooled, scores, settings.hypotheses, settings.duplicate_mm)
     any_valid = jnp.any(jnp.isfinite(kept))
-    log_weights = kept - jax.nn.logsumexp(jnp.where(any_valid, kept, 0.0))
+    log_evidence = jax.nn.logsumexp(jnp.where(any_valid, kept, 0.0))
+    log_weights = kept - log_evidence
     log_weights = jnp.where(any_valid & jnp.isfinite(kept), log_weights, -jnp.inf)
     poses = jaxlie.SE3(jnp.where(jnp.isfinite(poses.wxyz_xyz), poses.wxyz_xyz, jaxlie.SE3.identity().wxyz_xyz))
-    after = belief.replace(T_object_reference=poses, log_weights=log_weights)
+    after = belief.replace(T_object_reference=poses, log_weights=log_weights,
+                           log_evidence=jnp.where(any_valid, log_evidence, -jnp.inf))
     contact = jnp.any(evidence.contact_valid)
     return jax.tree.map(lambda new, old: jnp.where(contact, new, old), after, before)

@@ -64,3 +64,23 @@ def test_calibration_needs_the_objects_grasps(calibrated, tiny_encoder_path, tmp
     assert main(["calibrate-belief", map_path, "--grasps", str(other), "--model", model, "--encoder",
                  str(tiny_encoder_path)]) == 2
     assert "no calibration grasps of 'cylinder'" in capsys.readouterr().err
+
+
+def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny_encoder_path, tmp_path, capsys):
+    folder, map_path, model, _ = calibrated
+    gum_box = str(save_tactile_map(tmp_path / "gum_box.npz", gum_box_map))
+    gum_box_test = tmp_path / "test-gum_box"
+    assert main(["simulate", "gum_box", "--out", str(gum_box_test), *GRASPS, "--episodes", "2", "--seed", "5"]) == 0
+    report = tmp_path / "id.json"
+    assert main(["identify", map_path, gum_box, "--test", str(folder / "test"), str(gum_box_test), "--model", model,
+                 "--encoder", str(tiny_encoder_path), "--json", str(report)]) == 0
+    assert "P(object) from every map's pose belief" in capsys.readouterr().out
+    result = json.loads(report.read_text())
+    assert result["objects"] == ["cylinder", "gum_box"]
+    # The shared calibration: the median of the maps' own (only the cylinder has one).
+    assert result["calibration"]["temperature"] == pytest.approx(
+        tactile_map_metadata(map_path)["metadata"]["belief_calibration"]["temperature"])
+    assert [(r["grasps"], r["fingers"], r["count"]) for r in result["results"]] == [(1, 2, 5), (2, 2, 5)]
+    for row in result["results"]:
+        assert 0.0 <= row["top1"] <= 1.0 and 0.0 <= row["mean_probability_of_truth"] <= 1.0
+        assert set(row["per_object_top1"]) == {"cylinder", "gum_box"}

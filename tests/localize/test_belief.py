@@ -129,6 +129,8 @@ def test_two_touches_fuse_as_brute_force_enumeration(bumps, synthetic):
     scores = np.array(scores)
     expected = np.exp(scores - scores.max()) / np.exp(scores - scores.max()).sum()
     np.testing.assert_allclose(np.asarray(belief.probabilities)[valid], expected, rtol=1e-3, atol=1e-5)
+    log_evidence = scores.max() + np.log(np.exp(scores - scores.max()).sum())
+    assert float(belief.log_evidence) == pytest.approx(log_evidence, rel=1e-4, abs=1e-3)
     assert 2.0 ** -0.5 * 0.1 == pytest.approx(float(calibrated_log_likelihood(CALIBRATION, 1.0, 0.0, jnp.int32(2))))
     error = np.linalg.norm(np.asarray(belief.best.translation() - T_first.translation()))
     assert error < 0.5
@@ -224,3 +226,33 @@ def test_screened_candidates_are_the_exhaustive_best(bumps, synthetic):
     best = np.sort(exhaustive)[::-1][:settings.new_hypotheses]
     np.testing.assert_allclose(np.asarray(scores), best, rtol=1e-4, atol=1e-3)
     assert np.isfinite(np.asarray(poses.wxyz_xyz)).all()
+
+
+def test_object_probability_is_the_softmax_of_every_maps_evidence(bumps_map, ridges_map, synthetic):
+    """P(object) over two maps from the same touches: the softmax of each map's belief's log
+    evidence, enumerated here map by map with the belief itself."""
+    from tactojax.localize import TestEpisodes, identify_episodes
+
+    T_first, T_second = synthetic.sensor_pose(-2.0, 1.0), synthetic.sensor_pose(3.0, -2.5)
+    touches = [_touch(synthetic, T) for T in (T_first, T_second)]
+    features = jnp.asarray(synthetic.make_map(synthetic.bumps, [T_first, T_second]).features)
+    poses = jaxlie.SE3(jnp.stack([T_first.wxyz_xyz, T_second.wxyz_xyz]))
+    episodes = TestEpisodes(
+        heightmaps=jnp.stack([h for h, _ in touches]).reshape(1, 2, 1, *touches[0][0].shape),
+        masks=jnp.stack([m for _, m in touches]).reshape(1, 2, 1, *touches[0][1].shape),
+        features=features.reshape(1, 2, 1, -1), openings=jnp.full((1, 2), 20.0),
+        T_object_sensor=jaxlie.SE3(poses.wxyz_xyz.reshape(1, 2, 1, 7)),
+        cloud_mean=jnp.zeros((1, 2, 1, 3)), cloud_covariance=jnp.zeros((1, 2, 1, 3, 3)))
+    catalog = [(LocalizationMap.from_tactile_map(m), build_map_surface(m, SURFACE), None) for m in (bumps_map, ridges_map)]
+    probability = identify_episodes(catalog, episodes, fingers=1, calibration=CALIBRATION, settings=SETTINGS)
+    assert probability.shape == (1, 2, 2)
+    evidence = []
+    for view, surface, _ in catalog:
+        belief = _empty(view, calibration=CALIBRATION)
+        for (heightmap, mask), feature, T in zip(touches, features, (T_first, T_second)):
+            belief = update(view, surface, belief, touch_evidence(heightmap, mask, view.mm_per_px), feature,
+                            jnp.float32(20.0), T_first.inverse() @ T, SETTINGS)
+        evidence.append(float(belief.log_evidence))
+    expected = np.exp(np.array(evidence) - max(evidence))
+    np.testing.assert_allclose(probability[0, 1], expected / expected.sum(), rtol=1e-4, atol=1e-6)
+    assert probability[0, 1, 0] > 0.99  # the touches are of the bumps

@@ -1,0 +1,99 @@
+"""Which object is in the hand, from the grasps of an episode: object and pose in one belief.
+
+Every map of the catalog keeps its own pose belief over the same touches, all with *one*
+calibration so that their likelihoods compare; P(object) after k grasps is the softmax, over the
+maps, of each belief's log evidence (the log of its hypotheses' summed likelihoods, a uniform
+prior over objects). The same likelihood that weighs poses within a map weighs the maps.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from jaxtyping import Array, Float
+from tqdm.auto import tqdm
+
+from tactojax.localize._belief import BeliefCalibration, BeliefSettings, empty_belief, update_belief
+from tactojax.localize._likelihood import touch_evidence
+from tactojax.localize._map import LocalizationMap
+from tactojax.localize._new_grasps import TestEpisodes
+from tactojax.localize._surface import MapSurface
+
+
+def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCalibration:
+    """One calibration for beliefs that must compare: the element-wise median of the maps' own
+    (the uncalibrated default where none has one)."""
+    fitted = [c for c in calibrations if c is not None]
+    if not fitted:
+        return BeliefCalibration.default()
+    return jax.tree.map(lambda *x: jnp.float32(np.median(np.stack(x))), *fitted)
+
+
+@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
+def _episode_evidence(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
+                      calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> Float[Array, "G"]:
+    """(G,) one map's belief's log evidence after each grasp of an episode."""
+    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
+    evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
+                                                                                       episode.masks)
+    first = jax.tree.map(lambda x: x[0, 0], evidence)
+    belief = empty_belief(settings, first.contact.shape[0], first.free.shape[0], episode.features.shape[-1],
+                          symmetries=symmetries, calibration=calibration)
+
+    def grasp(belief, g):
+        for finger in range(fingers):
+            T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
+            belief = update_belief(view, surface, belief, jax.tree.map(lambda x: x[g, finger], evidence),
+                                   episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
+                                   settings)
+        return belief, belief.log_evidence
+
+    _, out = jax.lax.scan(grasp, belief, jnp.arange(episode.openings.shape[0]))
+    return out
+
+
+def identify_episodes(
+    maps: list[tuple[LocalizationMap, MapSurface, jaxlie.SE3 | None]],
+    episodes: TestEpisodes,
+    *,
+    fingers: int = 2,
+    calibration: BeliefCalibration | None = None,
+    settings: BeliefSettings = BeliefSettings(),
+    progress: bool = False,
+) -> np.ndarray:
+    """P(object) after each grasp of every episode, over a catalog of maps.
+
+    Args:
+        maps: (map, its surface, its symmetry transforms or None) for every object.
+        episodes: E episodes of G grasps (the only kinematics used: poses relative to the first touch).
+        fingers: fingers fused per grasp.
+        calibration: the one calibration every belief runs with (default: uncalibrated; see
+            :func:`shared_calibration`).
+        settings: belief parameters.
+        progress: show a progress bar.
+
+    Returns:
+        (E, G, M) probabilities of the M objects after 1..G grasps (a uniform prior).
+    """
+    calibration = BeliefCalibration.default() if calibration is None else calibration
+    count = episodes.openings.shape[0]
+    log_evidence = np.full((count, episodes.openings.shape[1], len(maps)), -np.inf)
+    steps = tqdm(total=count * len(maps), desc="beliefs (episode x map)", disable=not progress)
+    for m, (view, surface, symmetries) in enumerate(maps):
+        symmetries = jaxlie.SE3.identity((1,)) if symmetries is None else symmetries
+        for e in range(count):
+            episode = jax.tree.map(lambda x: x[e], episodes)
+            log_evidence[e, :, m] = np.asarray(_episode_evidence(view, surface, episode, symmetries, calibration,
+                                                                 fingers, settings))
+            steps.update()
+    steps.close()
+    finite = np.isfinite(log_evidence)
+    shifted = np.where(finite, log_evidence - np.max(np.where(finite, log_evidence, -1e30), axis=-1, keepdims=True),
+                       -np.inf)
+    weights = np.exp(shifted)
+    total = weights.sum(axis=-1, keepdims=True)
+    return np.where(total > 0, weights / np.maximum(total, 1e-300), 1.0 / len(maps))
