@@ -30,11 +30,9 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import (WITHIN_MM, BeliefCalibration, BeliefSettings, belief_terms, empty_belief,
-                                       hypothesis_distances, update_belief)
-from tactojax.localize._likelihood import touch_evidence
+from tactojax.localize._belief import WITHIN_MM, BeliefCalibration, BeliefSettings, belief_terms, hypothesis_distances
 from tactojax.localize._map import LocalizationMap
-from tactojax.localize._new_grasps import TestEpisodes
+from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
 from tactojax.localize._surface import MapSurface
 
 TEMPERATURES = tuple(float(t) for t in np.geomspace(0.002, 1.0, 28))
@@ -68,36 +66,33 @@ def _record_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpi
                     calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> BeliefRecord:
     """(G * fingers + G - 1,) records of one episode: touch by touch, then every later grasp's
     first finger alone."""
-    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
-    touches = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]),
-                           (episode.heightmaps, episode.masks, episode.features, episode.T_object_sensor))
-    openings = jnp.repeat(episode.openings, fingers)
-    first = touch_evidence(episode.heightmaps[0, 0], episode.masks[0, 0], view.mm_per_px)
-    belief = empty_belief(settings, first.contact.shape[0], first.free.shape[0], episode.features.shape[-1],
-                          symmetries=symmetries, calibration=calibration)
 
-    def touch(belief, inputs, T_reference=T_reference):
-        heightmap, mask, feature, T_object_sensor, opening = inputs
-        evidence = touch_evidence(heightmap, mask, view.mm_per_px)
-        belief = update_belief(view, surface, belief, evidence, feature, opening,
-                               T_reference.inverse() @ T_object_sensor, settings)
-        geometry, similarity = jax.vmap(lambda T: belief_terms(view, surface, belief, T, settings))(
-            belief.T_object_reference)
-        same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
-        truth = hypothesis_distances(belief, T_reference, symmetric=True)
-        valid = jnp.isfinite(belief.log_weights)
-        return belief, BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
-                                    same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
+    def record(T_reference):
+        def observe(belief, _):
+            geometry, similarity = jax.vmap(lambda T: belief_terms(view, surface, belief, T, settings))(
+                belief.T_object_reference)
+            same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
+            truth = hypothesis_distances(belief, T_reference, symmetric=True)
+            valid = jnp.isfinite(belief.log_weights)
+            return BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
+                                same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
+        return observe
 
-    def alone(inputs):  # a fresh belief from one touch, its own reference
-        return touch(belief, inputs, T_reference=inputs[3])[1]
+    def touch_by_touch(one_episode):  # one finger per grasp
+        T_reference = jax.tree.map(lambda x: x[0, 0], one_episode.T_object_sensor)
+        return fuse_episode(view, surface, one_episode, symmetries, calibration, 1, settings, record(T_reference))
 
-    _, fused = jax.lax.scan(touch, belief, (*touches, openings))
+    # Touch by touch: the episode as G x fingers grasps of one finger each.
+    grasps = episode.openings.shape[0]
+    per_touch = jax.tree.map(lambda x: x[:, :fingers].reshape(grasps * fingers, 1, *x.shape[2:]),
+                             episode.replace(openings=jnp.zeros((grasps, fingers))))
+    per_touch = per_touch.replace(openings=jnp.repeat(episode.openings, fingers)[:, None])
     # Every later grasp's first finger alone, as a single touch is also used (and evaluated):
     # the fit then sees as many one-touch beliefs as a robot meets.
-    later = (*jax.tree.map(lambda x: x[1:, 0], (episode.heightmaps, episode.masks, episode.features,
-                                                episode.T_object_sensor)), episode.openings[1:])
-    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fused, jax.lax.map(alone, later))
+    later = jax.tree.map(lambda x: x[1:, :1, None], episode.replace(openings=jnp.zeros((grasps, 1))))
+    later = later.replace(openings=episode.openings[1:, None, None])
+    alone = jax.lax.map(lambda one: jax.tree.map(lambda x: x[0], touch_by_touch(one)), later)
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), touch_by_touch(per_touch), alone)
 
 
 def record_beliefs(

@@ -17,10 +17,9 @@ import numpy as np
 from jaxtyping import Array, Float
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import BeliefCalibration, BeliefSettings, empty_belief, update_belief
-from tactojax.localize._likelihood import touch_evidence
+from tactojax.localize._belief import BeliefCalibration, BeliefSettings
 from tactojax.localize._map import LocalizationMap
-from tactojax.localize._new_grasps import TestEpisodes
+from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
 from tactojax.localize._surface import MapSurface
 
 
@@ -37,23 +36,8 @@ def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCa
 def _episode_evidence(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
                       calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> Float[Array, "G"]:
     """(G,) one map's belief's log evidence after each grasp of an episode."""
-    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
-    evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
-                                                                                       episode.masks)
-    first = jax.tree.map(lambda x: x[0, 0], evidence)
-    belief = empty_belief(settings, first.contact.shape[0], first.free.shape[0], episode.features.shape[-1],
-                          symmetries=symmetries, calibration=calibration)
-
-    def grasp(belief, g):
-        for finger in range(fingers):
-            T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
-            belief = update_belief(view, surface, belief, jax.tree.map(lambda x: x[g, finger], evidence),
-                                   episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
-                                   settings)
-        return belief, belief.log_evidence
-
-    _, out = jax.lax.scan(grasp, belief, jnp.arange(episode.openings.shape[0]))
-    return out
+    return fuse_episode(view, surface, episode, symmetries, calibration, fingers, settings,
+                        lambda belief, _: belief.log_evidence)
 
 
 def identify_episodes(

@@ -161,11 +161,14 @@ def _sizes(evidence):
     return evidence.contact.shape[0], evidence.free.shape[0]
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries,
-                   calibration: BeliefCalibration, fingers: int, settings: BeliefSettings):
-    """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
-    grasps = episode.openings.shape[0]
+def fuse_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
+                 calibration: BeliefCalibration, fingers: int, settings: BeliefSettings, observe):
+    """Fuse an episode's grasps into one belief, grasp by grasp (``fingers`` touches each, related
+    by the kinematics to the first touch), and return ``observe(belief, g)`` after every grasp
+    ``g``, stacked along a leading (G,) axis. Pure; the callers jit it.
+
+    To observe after every touch, pass the episode as G x F grasps of one finger each.
+    """
     T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
     evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
                                                                                        episode.masks)
@@ -178,16 +181,29 @@ def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpis
             belief = update_belief(view, surface, belief, jax.tree.map(lambda x: x[g, finger], evidence),
                                    episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
                                    settings)
+        return belief, observe(belief, g)
+
+    _, out = jax.lax.scan(grasp, belief, jnp.arange(episode.openings.shape[0]))
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
+def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries,
+                   calibration: BeliefCalibration, fingers: int, settings: BeliefSettings):
+    """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
+    grasps = episode.openings.shape[0]
+    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
+
+    def observe(belief, g):
         # Error over every touch fused so far (grasps 0..g, the fingers used).
         T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
         T_estimate = belief.best @ (T_reference.inverse() @ T_true)
         valid = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
         errors = _errors(T_true, T_estimate, episode.cloud_mean[:, :fingers].reshape(-1, 3),
                          episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, symmetries)
-        return belief, (*errors, belief.probability_within(), *belief.truth_scores(T_reference))
+        return (*errors, belief.probability_within(), *belief.truth_scores(T_reference))
 
-    _, out = jax.lax.scan(grasp, belief, jnp.arange(grasps))
-    return out
+    return fuse_episode(view, surface, episode, symmetries, calibration, fingers, settings, observe)
 
 
 def evaluate_new_grasps(
