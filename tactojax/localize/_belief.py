@@ -40,37 +40,13 @@ from tactojax.localize._candidates import CandidateGrid
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._evaluate import cloud_moments, moment_rmse
 from tactojax.localize._icp import IcpSettings, icp
-from tactojax.localize._likelihood import LikelihoodSettings, TouchEvidence, align_depth, log_likelihood
-from tactojax.localize._map import LocalizationMap
+from tactojax.localize._likelihood import LikelihoodSettings, align_depth, log_likelihood
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
+from tactojax.localize._points import TouchEvidence, touch_evidence
 from tactojax.localize._retrieval import rank_imprints
-from tactojax.localize._surface import MapSurface
 
 WITHIN_MM = 2.0
 """The error a belief's confidence is about: P(the best pose is within this), mm."""
-
-
-@struct.dataclass
-class BeliefCalibration:
-    """The likelihood's scales, fit on the map's own touches (:func:`~tactojax.localize.fit_calibration`).
-
-    One touch's log-likelihood at a hypothesis is ``temperature * geometry + appearance *
-    similarity``; the sum over the ``n`` touches a belief holds is scaled by
-    ``n ** -fusion_exponent`` (touches of one object are not independent evidence: 0 would
-    multiply them as if they were, 1 would count them all as one).
-    """
-
-    temperature: Float[Array, ""]
-    """Scale of the geometric log-likelihood (an effective share of independent points)."""
-    appearance: Float[Array, ""]
-    """Weight of the cosine similarity between the touch's features and the stored imprints'."""
-    fusion_exponent: Float[Array, ""]
-    """How much the evidence of several touches is discounted (see above)."""
-
-    @staticmethod
-    def default() -> BeliefCalibration:
-        """Uncalibrated scales (the temperature a map gets before :func:`fit_calibration`)."""
-        return BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(0.0),
-                                 fusion_exponent=jnp.float32(0.0))
 
 
 @dataclass(frozen=True)
@@ -91,6 +67,10 @@ class BeliefSettings:
     """Hypotheses a belief keeps (every symmetric copy and look-alike mode needs its own)."""
     max_touches: int = 6
     """Touches a belief remembers (e.g. 3 grasps x 2 fingers); older ones are forgotten."""
+    contact_points: int = 64
+    """Contact points of each touch that the likelihood reads."""
+    free_points: int = 64
+    """No-contact points of each touch's gel plane that the likelihood reads."""
     refine: int = 32
     """Hypotheses of the pool (the best by likelihood) that ICP refines (16 left a hypothesis
     within 2 mm of the truth unrefined in a fifth of the marker's failures)."""
@@ -133,6 +113,9 @@ class PoseBelief:
     """Their unit retrieval features."""
     T_reference_touch: jaxlie.SE3
     """(T,) every remembered touch's sensor pose in the reference sensor frame, mm."""
+    T_world_reference: jaxlie.SE3
+    """The reference touch's sensor pose in the world (robot) frame, mm, as the touch came with
+    it (identity before any touch)."""
     touch_valid: Bool[Array, "T"]
     """Which slots hold a touch."""
     symmetries: jaxlie.SE3
@@ -153,6 +136,16 @@ class PoseBelief:
     def best(self) -> jaxlie.SE3:
         """The most likely pose of the reference sensor."""
         return _take(self.T_object_reference, jnp.argmax(self.log_weights))
+
+    @property
+    def T_world_object(self) -> jaxlie.SE3:
+        """The object's most likely pose in the world (robot) frame, mm."""
+        return self.T_world_reference @ self.best.inverse()
+
+    def sensor_pose(self, T_world_sensor: jaxlie.SE3) -> jaxlie.SE3:
+        """The most likely pose, in the object frame, of a sensor at ``T_world_sensor`` (the
+        object staying put)."""
+        return self.best @ self.T_world_reference.inverse() @ T_world_sensor
 
     def touch_pose(self, touch: int | Int[Array, ""] = 0) -> jaxlie.SE3:
         """The most likely pose of remembered touch ``touch``'s sensor in the object frame."""
@@ -217,28 +210,23 @@ def hypothesis_distances(belief: PoseBelief, T_object_reference: jaxlie.SE3, *,
     return jnp.min(per_copy, axis=0)
 
 
-def empty_belief(settings: BeliefSettings, contact_points: int, free_points: int, feature_dim: int, *,
-                 symmetries: jaxlie.SE3 | None = None, calibration: BeliefCalibration | None = None) -> PoseBelief:
-    """A belief with no touch (every hypothesis slot empty).
+def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSettings()) -> PoseBelief:
+    """A belief with no touch (every hypothesis slot empty), with the map's symmetries and
+    calibration.
 
     Args:
-        settings: the update's parameters (hypothesis and touch slots).
-        contact_points, free_points: the evidence's sizes (:func:`~tactojax.localize.touch_evidence`).
-        feature_dim: length of the retrieval features.
-        symmetries: (S,) the object's symmetry transforms (default: none but the identity).
-        calibration: the map's likelihood scales (default: :meth:`BeliefCalibration.default`).
+        view: the object's map.
+        settings: the update's parameters (hypothesis and touch slots, points per touch).
     """
     count, slots = settings.hypotheses, settings.max_touches
-    evidence = TouchEvidence(contact=jnp.zeros((slots, contact_points, 3)),
-                             contact_valid=jnp.zeros((slots, contact_points), bool),
-                             free=jnp.zeros((slots, free_points, 3)), free_valid=jnp.zeros((slots, free_points), bool))
+    contact, free = settings.contact_points, settings.free_points
+    evidence = TouchEvidence(contact=jnp.zeros((slots, contact, 3)), contact_valid=jnp.zeros((slots, contact), bool),
+                             free=jnp.zeros((slots, free, 3)), free_valid=jnp.zeros((slots, free), bool))
     return PoseBelief(T_object_reference=jaxlie.SE3.identity((count,)),
                       log_weights=jnp.full((count,), -jnp.inf), evidence=evidence,
-                      features=jnp.zeros((slots, feature_dim)),
+                      features=jnp.zeros((slots, view.features.shape[1])),
                       T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
-                      symmetries=jaxlie.SE3.identity((1,)) if symmetries is None else symmetries,
-                      calibration=BeliefCalibration.default() if calibration is None else calibration,
-                      log_evidence=jnp.float32(-jnp.inf))
+                      T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries, calibration=view.calibration, log_evidence=jnp.float32(-jnp.inf))
 
 
 def _take(tree, index):
@@ -267,34 +255,27 @@ def remember(belief: PoseBelief, evidence: TouchEvidence, feature: Float[Array, 
 
 def facing_imprints(view: LocalizationMap, T_object_sensor: jaxlie.SE3, evidence: TouchEvidence,
                     count: int) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
-    """The ``count`` stored imprints nearest to where a touch lands (their contact centres to
-    its), among those facing its way (gel normals within 60 degrees), nearest first; and which
-    of them are real."""
+    """:meth:`LocalizationMap.imprints_near` where a touch's contact lands."""
     centre = T_object_sensor @ valid_centroid(evidence.contact, evidence.contact_valid)
-    normal = T_object_sensor.rotation().as_matrix()[:, 2]
-    normals = view.T_object_sensor.rotation().as_matrix()[..., :, 2]
-    distance = jnp.linalg.norm(view.centres - centre, axis=-1)
-    ok = view.imprint_valid & (normals @ normal >= 0.5)
-    score, nearest = jax.lax.top_k(jnp.where(ok, -distance, -jnp.inf), count)
-    return nearest, jnp.isfinite(score)
+    return view.imprints_near(T_object_sensor, centre, count)
 
 
-def touch_terms(view: LocalizationMap, surface: MapSurface, evidence: TouchEvidence, feature: Float[Array, "F"],
+def touch_terms(view: LocalizationMap, evidence: TouchEvidence, feature: Float[Array, "F"],
                 T_object_sensor: jaxlie.SE3, settings: BeliefSettings) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """The two cues of one touch at a pose, before calibration: its geometric log-likelihood
     against the map's surface, and the best cosine similarity of its unit features to the stored
     imprints where it lands (0 where none faces its way)."""
-    geometry = log_likelihood(surface, T_object_sensor, evidence, settings.likelihood)
+    geometry = log_likelihood(view.surface, T_object_sensor, evidence, settings.likelihood)
     nearby, nearby_valid = facing_imprints(view, T_object_sensor, evidence, settings.neighbours)
     similarity = jnp.max(jnp.where(nearby_valid, view.features[nearby] @ feature, -1.0))
     return geometry, jnp.where(jnp.any(nearby_valid), similarity, 0.0)
 
 
-def belief_terms(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+def belief_terms(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
                  settings: BeliefSettings) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """:func:`touch_terms` summed over the touches a belief holds, at one hypothesis."""
     T_touches = T_object_reference @ belief.T_reference_touch
-    geometry, similarity = jax.vmap(lambda e, f, T: touch_terms(view, surface, e, f, T, settings))(
+    geometry, similarity = jax.vmap(lambda e, f, T: touch_terms(view, e, f, T, settings))(
         belief.evidence, belief.features, T_touches)
     return (jnp.sum(jnp.where(belief.touch_valid, geometry, 0.0)),
             jnp.sum(jnp.where(belief.touch_valid, similarity, 0.0)))
@@ -314,7 +295,7 @@ def _first_points(evidence: TouchEvidence, count: int) -> TouchEvidence:
     return jax.tree.map(lambda x: x[:count], evidence)
 
 
-def candidates(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, evidence: TouchEvidence,
+def candidates(view: LocalizationMap, belief: PoseBelief, evidence: TouchEvidence,
                feature: Float[Array, "F"], opening: Float[Array, ""], T_reference_touch: jaxlie.SE3,
                settings: BeliefSettings, exclude: int | Int[Array, ""] = -1) -> tuple[jaxlie.SE3, Float[Array, "C"]]:
     """Step 2: the best ``new_hypotheses`` candidate poses of the reference touch that a new
@@ -336,6 +317,7 @@ def candidates(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, e
     few = _first_points(evidence, settings.screen_points)
     few_of_every_touch = jax.tree.map(lambda x: x[:, :settings.screen_points], belief.evidence)
     per_source = settings.grid.size
+    surface = view.surface
 
     def joint(T_object_reference, evidence_):
         per_touch = jax.vmap(lambda e, T_touch: log_likelihood(surface, T_object_reference @ T_touch, e,
@@ -376,10 +358,10 @@ def refine(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie
     return estimate.T_object_sensor
 
 
-def weigh(view: LocalizationMap, surface: MapSurface, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+def weigh(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
           settings: BeliefSettings) -> Float[Array, ""]:
     """Step 3: the calibrated log-likelihood of all remembered touches at one hypothesis."""
-    geometry, similarity = belief_terms(view, surface, belief, T_object_reference, settings)
+    geometry, similarity = belief_terms(view, belief, T_object_reference, settings)
     return calibrated_log_likelihood(belief.calibration, geometry, similarity, belief.touches)
 
 
@@ -399,12 +381,9 @@ def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "
 
 def update_belief(
     view: LocalizationMap,
-    surface: MapSurface,
     belief: PoseBelief,
-    evidence: TouchEvidence,
-    feature: Float[Array, "F"],
-    opening: Float[Array, ""],
-    T_reference_touch: jaxlie.SE3,
+    touch: Touch,
+    T_world_sensor: jaxlie.SE3,
     settings: BeliefSettings = BeliefSettings(),
     *,
     exclude: int | Int[Array, ""] = -1,
@@ -412,13 +391,12 @@ def update_belief(
     """``belief`` after one more touch (see the module docstring). Pure; vmap and jit freely.
 
     Args:
-        view: the object's map.
-        surface: its surface (:func:`~tactojax.localize.build_map_surface`).
+        view: the object's map (:meth:`LocalizationMap.from_tactile_map`).
         belief: the belief so far (:func:`empty_belief` before the first touch).
-        evidence: the new touch (:func:`~tactojax.localize.touch_evidence`).
-        feature: (F,) its retrieval features; opening: its gripper opening, mm.
-        T_reference_touch: its sensor pose in the reference touch's sensor frame (identity for
-            the first touch), from the kinematics.
+        touch: the new touch.
+        T_world_sensor: its sensor's pose in any fixed frame in which the object stays put (the
+            robot's base: gripper pose and finger kinematics), mm. Only the poses of a belief's
+            touches relative to each other matter; the first touch's becomes the reference.
         settings: parameters (static).
         exclude: a map imprint never used as a source (leave-one-out), -1 for none.
 
@@ -426,15 +404,21 @@ def update_belief(
         the updated belief (never NaN); a touch without contact changes nothing (before any
         touch with contact, every hypothesis slot stays empty: no estimate).
     """
+    evidence = touch_evidence(touch, view.mm_per_px, contact_count=settings.contact_points,
+                              free_count=settings.free_points)
+    feature, opening = touch.feature, touch.opening
     before = belief
     first = ~jnp.any(belief.touch_valid)
+    T_world_reference = jax.tree.map(lambda new, old: jnp.where(first, new, old), T_world_sensor,
+                                     belief.T_world_reference)
+    T_reference_touch = T_world_reference.inverse() @ T_world_sensor
+    belief = belief.replace(T_world_reference=T_world_reference)
     belief = remember(belief, evidence, feature, T_reference_touch)
-    T_new, new_scores = candidates(view, surface, belief, evidence, feature, opening, T_reference_touch, settings,
-                                   exclude)
+    T_new, new_scores = candidates(view, belief, evidence, feature, opening, T_reference_touch, settings, exclude)
     old_valid = jnp.isfinite(belief.log_weights) & ~first
     pooled = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), belief.T_object_reference, T_new)
     pooled_valid = jnp.concatenate([old_valid, jnp.isfinite(new_scores)])
-    score = jax.vmap(lambda T: weigh(view, surface, belief, T, settings))
+    score = jax.vmap(lambda T: weigh(view, belief, T, settings))
     scores = jnp.where(pooled_valid, score(pooled), -jnp.inf)
     _, chosen = jax.lax.top_k(scores, settings.refine)
     refined = jax.vmap(lambda T: refine(view, belief, T, settings))(_take(pooled, chosen))

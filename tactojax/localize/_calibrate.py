@@ -24,16 +24,14 @@ import itertools
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import WITHIN_MM, BeliefCalibration, BeliefSettings, belief_terms, hypothesis_distances
-from tactojax.localize._map import LocalizationMap
+from tactojax.localize._belief import WITHIN_MM, BeliefSettings, belief_terms, hypothesis_distances
+from tactojax.localize._map import BeliefCalibration, LocalizationMap
 from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
-from tactojax.localize._surface import MapSurface
 
 TEMPERATURES = tuple(float(t) for t in np.geomspace(0.002, 1.0, 28))
 """Candidate temperatures of the geometric log-likelihood."""
@@ -62,59 +60,50 @@ class BeliefRecord:
 
 
 @functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _record_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
-                    calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> BeliefRecord:
+def _record_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings) -> BeliefRecord:
     """(G * fingers + G - 1,) records of one episode: touch by touch, then every later grasp's
     first finger alone."""
 
-    def record(T_reference):
-        def observe(belief, _):
-            geometry, similarity = jax.vmap(lambda T: belief_terms(view, surface, belief, T, settings))(
-                belief.T_object_reference)
-            same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
-            truth = hypothesis_distances(belief, T_reference, symmetric=True)
-            valid = jnp.isfinite(belief.log_weights)
-            return BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
-                                same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
-        return observe
+    def record(belief, _):
+        geometry, similarity = jax.vmap(lambda T: belief_terms(view, belief, T, settings))(belief.T_object_reference)
+        same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
+        # The sensor poses are given in the object frame: the reference's world pose is the truth.
+        truth = hypothesis_distances(belief, belief.T_world_reference, symmetric=True)
+        valid = jnp.isfinite(belief.log_weights)
+        return BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
+                            same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
 
     def touch_by_touch(one_episode):  # one finger per grasp
-        T_reference = jax.tree.map(lambda x: x[0, 0], one_episode.T_object_sensor)
-        return fuse_episode(view, surface, one_episode, symmetries, calibration, 1, settings, record(T_reference))
+        return fuse_episode(view, one_episode, 1, settings, record)
 
     # Touch by touch: the episode as G x fingers grasps of one finger each.
     grasps = episode.openings.shape[0]
     per_touch = jax.tree.map(lambda x: x[:, :fingers].reshape(grasps * fingers, 1, *x.shape[2:]),
                              episode.replace(openings=jnp.zeros((grasps, fingers))))
-    per_touch = per_touch.replace(openings=jnp.repeat(episode.openings, fingers)[:, None])
+    per_touch = per_touch.replace(openings=jnp.repeat(episode.openings, fingers))
     # Every later grasp's first finger alone, as a single touch is also used (and evaluated):
     # the fit then sees as many one-touch beliefs as a robot meets.
     later = jax.tree.map(lambda x: x[1:, :1, None], episode.replace(openings=jnp.zeros((grasps, 1))))
-    later = later.replace(openings=episode.openings[1:, None, None])
+    later = later.replace(openings=episode.openings[1:, None])
     alone = jax.lax.map(lambda one: jax.tree.map(lambda x: x[0], touch_by_touch(one)), later)
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), touch_by_touch(per_touch), alone)
 
 
 def record_beliefs(
     view: LocalizationMap,
-    surface: MapSurface,
     episodes: TestEpisodes,
     *,
     fingers: int = 2,
-    symmetries: jaxlie.SE3 | None = None,
-    calibration: BeliefCalibration | None = None,
     settings: BeliefSettings = BeliefSettings(),
     progress: bool = False,
 ) -> BeliefRecord:
     """Run the belief over calibration episodes and keep what :func:`fit_calibration` needs.
 
     Args:
-        view, surface: the map and its surface.
+        view: the map, with the scales the belief runs with (they decide which hypotheses it
+            keeps; the map's own calibration, or the uncalibrated default).
         episodes: calibration grasps of the map's object (E episodes of G grasps).
         fingers: fingers per grasp (touches: G x fingers per episode, fused in order).
-        symmetries: (S,) the object's symmetry transforms (default: the identity).
-        calibration: the scales the belief runs with (they decide which hypotheses it keeps;
-            default: uncalibrated).
         settings: belief parameters.
         progress: show a progress bar.
 
@@ -122,10 +111,7 @@ def record_beliefs(
         (E * (G * fingers + G - 1),) records, as numpy arrays: every episode's beliefs touch by
         touch, then each of its later grasps' first-finger touch alone.
     """
-    symmetries = jaxlie.SE3.identity((1,)) if symmetries is None else symmetries
-    calibration = BeliefCalibration.default() if calibration is None else calibration
-    per_episode = [jax.device_get(_record_episode(view, surface, jax.tree.map(lambda x: x[e], episodes), symmetries,
-                                                  calibration, fingers, settings))
+    per_episode = [jax.device_get(_record_episode(view, jax.tree.map(lambda x: x[e], episodes), fingers, settings))
                    for e in tqdm(range(episodes.openings.shape[0]), desc="calibration episodes", disable=not progress)]
     return jax.tree.map(lambda *x: np.concatenate(x), *per_episode)
 

@@ -5,6 +5,11 @@ error of an estimate is the RMSE between the held-out imprint's stored cloud at 
 at its estimated pose (the paper's metric), plus translation and rotation errors of the
 sensor pose and, given the object's symmetries, the symmetry-aware RMSE. Queries run vmapped
 in fixed-size chunks, so each method compiles once per map size.
+
+The belief also reads the map's surface, which holds every imprint's points: it is rebuilt
+without the queries, fold by fold (``folds`` interleaved folds of the queries, each held out of
+the surface and of retrieval together: a harder test than leaving one imprint out, since each
+query's neighbours in its fold are gone too).
 """
 
 from __future__ import annotations
@@ -21,11 +26,10 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._correspondences import matvec, valid_centroid
 from tactojax.localize._icp import IcpSettings
-from tactojax.localize._map import LocalizationMap, map_query
-from tactojax.localize._methods import (PAPER_METHODS, POINTS_PER_QUERY, estimate_pose, localize_query, parse_method,
-                                        query_points)
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
+from tactojax.localize._points import POINTS_PER_TOUCH
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
-from tactojax.localize._search import SearchSettings
+from tactojax.localize._surface import build_map_surface
 from tactojax.mapping import TactileMap
 
 HISTOGRAM_EDGES_MM = tuple(float(x) for x in np.arange(0.0, 85.0, 5.0))
@@ -121,24 +125,41 @@ def oracle_imprints(
     return indices, eligible[indices]
 
 
-@functools.partial(jax.jit, static_argnames=("method", "settings", "search", "points_per_query", "oracle"))
-def _evaluate_chunk(keys, view, queries, exclude, clouds, cloud_valid, T_true, symmetries,
-                    max_opening_difference_mm, method, settings, search, points_per_query, oracle):
-    def one(key, query, exclude, cloud, valid, T):
+@functools.partial(jax.jit, static_argnames=("method", "settings", "points_per_touch", "oracle"))
+def _baseline_chunk(keys, view, index, clouds, cloud_valid, T_true, max_opening_difference_mm, method, settings,
+                    points_per_touch, oracle):
+    from tactojax.localize._baselines import baseline_estimate, estimate_pose  # noqa: F401
+    from tactojax.localize._points import contact_points
+
+    def one(key, exclude, cloud, valid, T):
+        touch = map_touch(view, exclude)
         if oracle and method.kind != "random":
             indices, indices_valid = oracle_imprints(
-                view, cloud, valid, T, query.opening, max(method.n, 1), exclude=exclude,
+                view, cloud, valid, T, touch.opening, max(method.n, 1), exclude=exclude,
                 max_opening_difference_mm=max_opening_difference_mm)
-            points, points_valid = query_points(query, view.mm_per_px, points_per_query)
-            estimate = estimate_pose(view, query, points, points_valid, indices, indices_valid, method,
-                                     settings=settings, search=search, exclude=exclude)
+            points, points_valid = contact_points(touch, view.mm_per_px, points_per_touch)
+            estimate = estimate_pose(view, points, points_valid, indices, indices_valid, method, settings=settings)
         else:
-            estimate = localize_query(key, view, query, method, settings=settings, search=search,
-                                      points_per_query=points_per_query,
-                                      max_opening_difference_mm=max_opening_difference_mm, exclude=exclude)
-        return estimate, pose_errors(cloud, valid, T, estimate.T_object_sensor, symmetries)
+            estimate = baseline_estimate(key, view, touch, method, settings=settings, points_per_touch=points_per_touch,
+                                         max_opening_difference_mm=max_opening_difference_mm, exclude=exclude)
+        errors = pose_errors(cloud, valid, T, estimate.T_object_sensor, view.symmetries)
+        return estimate.T_object_sensor, jnp.float32(jnp.nan), estimate.imprint_index, errors
 
-    return jax.vmap(one)(keys, queries, exclude, clouds, cloud_valid, T_true)
+    return jax.vmap(one)(keys, index, clouds, cloud_valid, T_true)
+
+
+@functools.partial(jax.jit, static_argnames=("settings",))
+def _belief_chunk(view, index, clouds, cloud_valid, T_true, settings):
+    from tactojax.localize._belief import empty_belief, update_belief
+
+    def one(args):
+        exclude, cloud, valid, T = args
+        belief = update_belief(view, empty_belief(view, settings), map_touch(view, exclude), jaxlie.SE3.identity(),
+                               settings, exclude=exclude)
+        errors = pose_errors(cloud, valid, T, belief.best, view.symmetries)
+        return belief.best, belief.probability_within(), jnp.int32(-1), errors
+
+    return jax.lax.map(one, (index, clouds, cloud_valid, T_true), batch_size=4)
 
 
 @dataclass
@@ -156,12 +177,10 @@ class LocalizationErrors:
     """(Q,) sensor rotation error, degrees."""
     symmetric_rmse: np.ndarray
     """(Q,) symmetry-aware cloud RMSE, mm (= rmse without symmetries)."""
-    converged: np.ndarray
-    score: np.ndarray
-    overlap: np.ndarray
-    iterations: np.ndarray
+    probability: np.ndarray
+    """(Q,) the belief's P(rmse <= 2 mm) (NaN for the baselines)."""
     imprint_index: np.ndarray
-    """(Q,) the map imprint each estimate started from (-1: none)."""
+    """(Q,) the map imprint each baseline estimate started from (-1: none, or the belief)."""
     histogram_edges_mm: tuple[float, ...] = field(default=HISTOGRAM_EDGES_MM)
 
     def histogram(self, values: np.ndarray | None = None) -> list[int]:
@@ -181,7 +200,7 @@ class LocalizationErrors:
             "rmse_mm": stats(self.rmse), "symmetric_rmse_mm": stats(self.symmetric_rmse),
             "translation_mm": stats(self.translation), "rotation_deg": stats(self.rotation),
             "within_mm": {str(t): float(np.mean(self.rmse <= t)) for t in (1, 2, 5, 10)},
-            "converged": float(np.mean(self.converged)),
+            "symmetric_within_mm": {str(t): float(np.mean(self.symmetric_rmse <= t)) for t in (1, 2, 5, 10)},
             "histogram": {"edges_mm": list(self.histogram_edges_mm), "counts": self.histogram(),
                           "symmetric_counts": self.histogram(self.symmetric_rmse)},
         }
@@ -195,15 +214,17 @@ class LocalizationErrors:
 def evaluate_localization(
     key: PRNGKeyArray,
     tactile_map: TactileMap,
-    methods=PAPER_METHODS,
+    methods=("belief", "cti-icp-5"),
     *,
-    settings: IcpSettings = IcpSettings(),
-    search: SearchSettings = SearchSettings(),
-    points_per_query: int = POINTS_PER_QUERY,
+    calibration: BeliefCalibration | None = None,
     symmetries: jaxlie.SE3 | None = None,
+    settings: IcpSettings = IcpSettings(),
+    belief_settings=None,
+    points_per_touch: int = POINTS_PER_TOUCH,
     queries=None,
     map_valid=None,
     oracle: bool = False,
+    folds: int = 10,
     max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM,
     chunk_size: int = 32,
     pad_to_multiple: int = 256,
@@ -214,16 +235,19 @@ def evaluate_localization(
     Args:
         key: PRNG key.
         tactile_map: the map, with features.
-        methods: method names (see :func:`~tactojax.localize.localize`).
-        settings: ICP parameters.
-        search: search parameters (``cti-search-N``).
-        points_per_query: query points for ICP.
-        symmetries: optional (S,) object-frame symmetry transforms (symmetry-aware RMSE).
+        methods: ``"belief"`` and baselines (see :func:`~tactojax.localize.localize_baseline`).
+        calibration: the belief's scales (default: uncalibrated).
+        symmetries: (S,) object-frame symmetry transforms for the symmetry-aware RMSE (default:
+            the catalog's for a catalog object).
+        settings: ICP parameters of the baselines.
+        belief_settings: the belief's parameters (default :class:`~tactojax.localize.BeliefSettings`).
+        points_per_touch: contact points of the ICP baselines.
         queries: indices of the imprints to query (default: every valid imprint).
         map_valid: (K,) optional mask of the imprints that form the map (map-size study);
             queried imprints are excluded from the map in any case.
-        oracle: retrieve the imprints truly nearest to each query instead of the most similar
-            (a diagnostic that separates retrieval from registration errors).
+        oracle: the baselines retrieve the imprints truly nearest to each query instead of the
+            most similar (a diagnostic that separates retrieval from registration errors).
+        folds: the belief's queries are held out of the map's surface in this many folds.
         max_opening_difference_mm: CTI's opening filter, mm.
         chunk_size: queries per vmapped batch (fixed: one compilation).
         pad_to_multiple: pad the map with invalid imprints to a multiple of this many, so that
@@ -233,7 +257,12 @@ def evaluate_localization(
     Returns:
         ``{method name: LocalizationErrors}``.
     """
-    view = LocalizationMap.from_tactile_map(tactile_map).padded(pad_to_multiple)
+    from tactojax.localize._baselines import parse_method
+    from tactojax.localize._belief import BeliefSettings
+
+    belief_settings = BeliefSettings() if belief_settings is None else belief_settings
+    view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration, symmetries=symmetries)
+    view = view.padded(pad_to_multiple)
     if map_valid is not None:
         view = view.with_imprint_valid(jnp.asarray(map_valid, bool))
     if queries is None:
@@ -241,34 +270,53 @@ def evaluate_localization(
     queries = np.asarray(queries, np.int64)
     if len(queries) == 0:
         raise ValueError("no query imprints to evaluate")
-    if symmetries is not None:
-        symmetries = jaxlie.SE3(jnp.asarray(symmetries.wxyz_xyz, jnp.float32).reshape(-1, 7))
     count = len(queries)
-    padded = np.concatenate([queries, np.repeat(queries[-1:], -count % chunk_size)])
     results = {}
     for name in methods:
         method = parse_method(name)
-        outputs = []
         bar = tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", disable=not progress)
-        for start in range(0, len(padded), chunk_size):
-            index = jnp.asarray(padded[start:start + chunk_size], jnp.int32)
-            keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
-            T_true = jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor)
-            estimate, errors = _evaluate_chunk(
-                keys, view, jax.vmap(lambda i: map_query(view, i))(index), index,
-                tactile_map.points[index], tactile_map.valid[index], T_true, symmetries,
-                jnp.float32(max_opening_difference_mm), method, settings, search, points_per_query, oracle)
-            outputs.append(jax.device_get((estimate, errors)))
-            bar.update(min(chunk_size, count - start))
+        if method.kind == "belief":
+            fold_of = np.arange(count) % max(1, min(folds, count))
+            groups = [(np.flatnonzero(fold_of == f), _without(tactile_map, view, queries[fold_of == f]))
+                      for f in range(fold_of.max() + 1)]
+        else:
+            groups = [(np.arange(count), view)]
+        order, outputs = [], []
+        for positions, group_view in groups:
+            chunk = chunk_size if method.kind != "belief" else 4 * max(1, chunk_size // 4)
+            padded = np.concatenate([queries[positions], np.repeat(queries[positions][-1:], -len(positions) % chunk)])
+            for start in range(0, len(padded), chunk):
+                index = jnp.asarray(padded[start:start + chunk], jnp.int32)
+                T_true = jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor)
+                clouds, cloud_valid = tactile_map.points[index], tactile_map.valid[index]
+                if method.kind == "belief":
+                    out = _belief_chunk(group_view, index, clouds, cloud_valid, T_true, belief_settings)
+                else:
+                    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
+                    out = _baseline_chunk(keys, group_view, index, clouds, cloud_valid, T_true,
+                                          jnp.float32(max_opening_difference_mm), method, settings,
+                                          points_per_touch, oracle)
+                outputs.append(jax.device_get(out))
+                bar.update(min(chunk, len(positions) - start))
+            order.append(np.concatenate([positions, np.full(-len(positions) % chunk, -1)]))
         bar.close()
-        estimate = jax.tree.map(lambda *x: np.concatenate(x)[:count], *[o[0] for o in outputs])
-        errors = jax.tree.map(lambda *x: np.concatenate(x)[:count], *[o[1] for o in outputs])
+        keep = np.concatenate(order)
+        _, probability, imprint_index, errors = jax.tree.map(lambda *x: np.concatenate(x)[keep >= 0], *outputs)
+        position = keep[keep >= 0]
+        unsort = np.argsort(position)
+        errors = {k: v[unsort] for k, v in errors.items()}
         results[method.name] = LocalizationErrors(
             method=method.name, queries=queries, rmse=errors["rmse"], translation=errors["translation"],
             rotation=errors["rotation"], symmetric_rmse=errors["symmetric_rmse"],
-            converged=estimate.converged, score=estimate.score, overlap=estimate.overlap,
-            iterations=estimate.iterations, imprint_index=estimate.imprint_index)
+            probability=probability[unsort], imprint_index=imprint_index[unsort])
     return results
+
+
+def _without(tactile_map: TactileMap, view: LocalizationMap, held_out: np.ndarray) -> LocalizationMap:
+    """The map without the imprints ``held_out``: switched off, and out of its surface."""
+    mask = np.zeros(len(tactile_map), bool)
+    mask[held_out] = True
+    return view.with_imprint_valid(~mask).replace(surface=build_map_surface(tactile_map, exclude=mask))
 
 
 def map_size_study(

@@ -12,15 +12,13 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
 from jaxtyping import Array, Float
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import BeliefCalibration, BeliefSettings
-from tactojax.localize._map import LocalizationMap
+from tactojax.localize._belief import BeliefSettings
+from tactojax.localize._map import BeliefCalibration, LocalizationMap
 from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
-from tactojax.localize._surface import MapSurface
 
 
 def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCalibration:
@@ -33,15 +31,14 @@ def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCa
 
 
 @functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _episode_evidence(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
-                      calibration: BeliefCalibration, fingers: int, settings: BeliefSettings) -> Float[Array, "G"]:
+def _episode_evidence(view: LocalizationMap, episode: TestEpisodes, fingers: int,
+                      settings: BeliefSettings) -> Float[Array, "G"]:
     """(G,) one map's belief's log evidence after each grasp of an episode."""
-    return fuse_episode(view, surface, episode, symmetries, calibration, fingers, settings,
-                        lambda belief, _: belief.log_evidence)
+    return fuse_episode(view, episode, fingers, settings, lambda belief, _: belief.log_evidence)
 
 
 def identify_episodes(
-    maps: list[tuple[LocalizationMap, MapSurface, jaxlie.SE3 | None]],
+    maps: list[LocalizationMap],
     episodes: TestEpisodes,
     *,
     fingers: int = 2,
@@ -52,7 +49,7 @@ def identify_episodes(
     """P(object) after each grasp of every episode, over a catalog of maps.
 
     Args:
-        maps: (map, its surface, its symmetry transforms or None) for every object.
+        maps: every object's map.
         episodes: E episodes of G grasps (the only kinematics used: poses relative to the first touch).
         fingers: fingers fused per grasp.
         calibration: the one calibration every belief runs with (default: uncalibrated; see
@@ -67,12 +64,11 @@ def identify_episodes(
     count = episodes.openings.shape[0]
     log_evidence = np.full((count, episodes.openings.shape[1], len(maps)), -np.inf)
     steps = tqdm(total=count * len(maps), desc="beliefs (episode x map)", disable=not progress)
-    for m, (view, surface, symmetries) in enumerate(maps):
-        symmetries = jaxlie.SE3.identity((1,)) if symmetries is None else symmetries
+    for m, view in enumerate(maps):
+        view = view.replace(calibration=calibration)
         for e in range(count):
             episode = jax.tree.map(lambda x: x[e], episodes)
-            log_evidence[e, :, m] = np.asarray(_episode_evidence(view, surface, episode, symmetries, calibration,
-                                                                 fingers, settings))
+            log_evidence[e, :, m] = np.asarray(_episode_evidence(view, episode, fingers, settings))
             steps.update()
     steps.close()
     finite = np.isfinite(log_evidence)

@@ -1,6 +1,6 @@
 """How likely a touch is at a pose: its contact and its no-contact against the map's surface.
 
-A touch is summarised by fixed-size evidence (:class:`TouchEvidence`): points where the gel
+A touch is summarised by fixed-size evidence (:func:`~tactojax.localize._points.touch_evidence`): points where the gel
 felt the object (x, y, -h) and points of the gel plane where it felt nothing (x, y, 0), both
 in its sensor frame. At a pose hypothesis, both are placed in the object frame and read in the
 whole map's signed-distance grid (:class:`~tactojax.localize.MapSurface`), point by point:
@@ -26,13 +26,10 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Float
 
-from tactojax.geometry import pixel_grid
-from tactojax.localize._consistency import FREE_HEIGHT_MM
 from tactojax.localize._correspondences import matvec
-from tactojax.localize._methods import draw_pixels, pixel_priority
+from tactojax.localize._points import TouchEvidence
 from tactojax.localize._surface import MapSurface
 
 
@@ -53,43 +50,6 @@ class LikelihoodSettings:
     violation: float = 0.05
     """Probability of a no-contact pixel where the map's surface presses the gel (or of
     contact in space the map saw free)."""
-
-
-@struct.dataclass
-class TouchEvidence:
-    """What one touch says, as fixed-size point sets in its sensor frame (mm)."""
-
-    contact: Float[Array, "P 3"]
-    """Points where the gel felt the object: (x, y, -height)."""
-    contact_valid: Bool[Array, "P"]
-    free: Float[Array, "F 3"]
-    """Points of the gel plane where it felt nothing: (x, y, 0)."""
-    free_valid: Bool[Array, "F"]
-
-
-def touch_evidence(
-    heightmap: Float[Array, "H W"],
-    mask: Bool[Array, "H W"],
-    mm_per_px: float,
-    *,
-    contact_points: int = 64,
-    free_points: int = 64,
-) -> TouchEvidence:
-    """The evidence of one touch: contact points from its mask, no-contact points elsewhere.
-
-    Pixels are drawn by a fixed random order (the same touch always gives the same points).
-    No-contact pixels are those outside the mask and indented less than ``FREE_HEIGHT_MM``.
-    """
-    height_px, width_px = heightmap.shape
-    flat_height = heightmap.reshape(-1)
-    x, y = pixel_grid(height_px, width_px, mm_per_px).reshape(-1, 2).T
-    contact_index, contact_valid = draw_pixels(mask.reshape(-1), pixel_priority(height_px, width_px, 1), contact_points)
-    free = ~mask.reshape(-1) & (flat_height < FREE_HEIGHT_MM)
-    free_index, free_valid = draw_pixels(free, pixel_priority(height_px, width_px, 2), free_points)
-    contact = jnp.stack([x[contact_index], y[contact_index], -flat_height[contact_index]], axis=-1)
-    free_xyz = jnp.stack([x[free_index], y[free_index], jnp.zeros(free_points)], axis=-1)
-    return TouchEvidence(contact=contact, contact_valid=contact_valid & ~jnp.all(~mask),
-                         free=free_xyz, free_valid=free_valid & jnp.any(mask))
 
 
 def point_log_likelihoods(

@@ -1,19 +1,25 @@
-"""The live localizer: one compiled program from a raw tactile image to object, pose, confidence.
+"""The live localizer: camera frames and gripper poses in; object, pose and confidence out.
 
-A control loop calls :class:`Localizer` once per camera frame. Everything a touch needs runs
-in a single XLA program compiled ahead of time when the localizer is built (fixed image size,
-fixed map sizes, fixed method): heightmap prediction (section IV), features, identification
-among the maps (section VII), then localization in the chosen object's map (section VI). The
-compiled program only accepts arrays of the shapes it was built for, so a call can never
+A control loop calls :class:`Localizer` once per camera frame, with the gripper's pose and
+opening at that frame (and the second finger's frame on a two-sensor gripper). Each frame runs
+one precompiled program (heightmap prediction, section IV, and whether the gel is touched);
+when a grasp has *settled* (``LiveSettings.settle_frames`` frames in contact with the gripper
+at rest), its touches (one per finger) update every map's pose belief once, with features
+from the encoder. Successive grasps of an object that stays put are fused by their sensor
+poses (the kinematics); :meth:`Localizer.reset` forgets them (the object was released or
+moved). Between updates every frame reports the belief as it stands, the sensor pose moved
+with the gripper.
+
+Several maps: each keeps its own belief, all under one calibration, so their evidences compare:
+P(object) is their softmax (:func:`~tactojax.localize.identify_episodes` does the same offline).
+
+Every program is compiled when the localizer is built (fixed image size, map sizes and
+settings) and accepts only arrays of the shapes it was built for, so a frame can never
 recompile; a wrong image raises a clear ``ValueError`` before it reaches JAX.
-
-Switching maps inside the program uses ``lax.switch``: each map is its own branch operand, so
-picking an object costs nothing (no copy of a stacked map).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Sequence
@@ -24,68 +30,83 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from tactojax._compilation import kernel_count
 from tactojax.features import Encoder
 from tactojax.features._encoder import apply_encoder
-from tactojax.localize._icp import IcpSettings
-from tactojax.localize._identify import MapLibrary, identify
-from tactojax.localize._map import LocalizationMap, Query
-from tactojax.localize._methods import POINTS_PER_QUERY, Method, localize_query, parse_method
-from tactojax.localize._pose import PoseEstimate
-from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
-from tactojax.localize._search import SearchSettings
+from tactojax.geometry import opposite_sensor_pose, sensor_pose
+from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
+from tactojax.localize._identify_episodes import shared_calibration
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
-CONFIDENT_RESIDUAL_MM = 0.5
-"""Fit residual at which :attr:`LiveEstimate.confidence` has dropped to 1/e of the overlap."""
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """When a grasp counts as settled (static)."""
+
+    settle_frames: int = 3
+    """Frames in contact with the gripper at rest before a grasp updates the belief (once)."""
+    still_mm: float = 0.2
+    """The gripper is at rest when it moves less than this between frames, mm..."""
+    still_deg: float = 0.5
+    """...turns less than this, degrees..."""
+    still_opening_mm: float = 0.1
+    """...and its opening changes less than this, mm."""
+    modes: int = 3
+    """Modes of the belief a :class:`LiveEstimate` reports."""
+
+    def __post_init__(self):
+        if self.settle_frames < 1:
+            raise ValueError(f"settle_frames must be >= 1, got {self.settle_frames}")
 
 
 @dataclass(frozen=True)
 class LiveEstimate:
-    """What the localizer says about one touch (host-side numbers, ready to log or publish).
+    """What the localizer believes after one frame (host-side numbers, ready to log or publish).
 
-    A frame without contact (nothing touching, a black frame) has no estimate: ``contact`` is
-    False, ``object_id`` and ``T_object_sensor`` are None and the numbers are 0 (``latency_s``
-    is still measured). Check ``estimate.contact`` (or ``estimate.T_object_sensor is None``)
-    before using the pose.
+    Before the first settled grasp there is no estimate: ``object_id``, ``T_object_sensor`` and
+    ``T_world_object`` are None and the probabilities 0. Check ``estimate.T_world_object is
+    None`` before using a pose.
     """
 
     object_id: str | None
-    """The identified object (the map holding the most similar imprint); None without contact."""
+    """The most probable object (None before any settled grasp)."""
+    object_probabilities: dict[str, float]
+    """P(object) of every map (1.0 with a single map once it has a touch)."""
     T_object_sensor: jaxlie.SE3 | None
-    """Sensor pose in that object's frame, mm; None without contact."""
-    confidence: float
-    """A heuristic in [0, 1]: 0 without contact or without a retrieved imprint, else the
-    fraction of the touch's points matched in the map times ``exp(-(residual /
-    CONFIDENT_RESIDUAL_MM)^2)``. Not a calibrated probability."""
+    """This frame's sensor pose in that object's frame, mm (the belief's best pose, moved with
+    the gripper since the grasp that set it)."""
+    T_world_object: jaxlie.SE3 | None
+    """The object's pose in the world (robot) frame, mm."""
+    probability_within: float
+    """The belief's calibrated P(its best pose is within 2 mm of the truth)."""
+    modes: tuple[tuple[jaxlie.SE3, float], ...]
+    """The belief's most probable modes: (T_world_object, probability), most probable first
+    (symmetric copies count as one)."""
     contact: bool
-    """Whether the frame shows a touch (:func:`tactojax.mapping.shows_contact`)."""
-    similarity: float
-    """Cosine similarity of the closest imprint in the chosen map."""
-    identity_margin: float
-    """Its lead over the best imprint of any other map (1.0 with a single map)."""
-    residual_mm: float
-    """Robust RMS point-to-plane residual at the estimate, mm."""
-    overlap: float
-    """Fraction of the query's points matched in the map at the estimate."""
-    converged: bool
-    """ICP's step fell below its tolerance within its iterations (a good fit may still be False
-    when the iterations ran out first)."""
+    """Whether this frame shows a touch (:func:`tactojax.mapping.shows_contact`)."""
+    grasps: int
+    """Settled grasps fused into the belief since the last :meth:`Localizer.reset`."""
+    updated: bool
+    """Whether this frame's grasp updated the belief."""
     latency_s: float
     """Wall time of the call, from image in to estimate out, s."""
     tracked: bool = False
-    """Whether a :class:`~tactojax.localize.Tracker` followed the pose from the previous frame
-    (False: localized from nothing, as :class:`Localizer` always does)."""
+    """Whether a :class:`~tactojax.localize.Tracker` followed the pose from the previous frame."""
+    residual_mm: float = 0.0
+    """The tracked fit's robust RMS residual, mm (0 unless ``tracked``)."""
 
     def as_dict(self) -> dict:
-        """JSON-ready fields (the pose as wxyz + xyz, mm; null without contact)."""
-        pose = None if self.T_object_sensor is None else np.asarray(self.T_object_sensor.wxyz_xyz).round(6).tolist()
-        return {"object_id": self.object_id, "T_object_sensor_wxyz_xyz": pose,
-                "confidence": self.confidence, "contact": self.contact, "similarity": self.similarity,
-                "identity_margin": self.identity_margin, "residual_mm": self.residual_mm,
-                "overlap": self.overlap, "converged": self.converged, "latency_s": self.latency_s,
-                "tracked": self.tracked}
+        """JSON-ready fields (poses as wxyz + xyz, mm; null without an estimate)."""
+        def pose(T):
+            return None if T is None else np.asarray(T.wxyz_xyz).round(6).tolist()
+        return {"object_id": self.object_id, "object_probabilities": self.object_probabilities,
+                "T_object_sensor_wxyz_xyz": pose(self.T_object_sensor),
+                "T_world_object_wxyz_xyz": pose(self.T_world_object),
+                "probability_within_2mm": self.probability_within,
+                "modes": [{"T_world_object_wxyz_xyz": pose(T), "probability": p} for T, p in self.modes],
+                "contact": self.contact, "grasps": self.grasps, "updated": self.updated,
+                "latency_s": self.latency_s, "tracked": self.tracked, "residual_mm": self.residual_mm}
 
 
 def observe(model: ShapeModel, image: jax.Array,
@@ -98,35 +119,6 @@ def observe(model: ShapeModel, image: jax.Array,
     heightmap, mask = predict(model, pixels, coordinate_bias)
     mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
     return pixels, heightmap, mask, shows_contact(pixels, model.background, mask)
-
-
-def relocalize(encoder: Encoder, library: MapLibrary, views: tuple[LocalizationMap, ...], pixels: jax.Array,
-               heightmap: jax.Array, mask: jax.Array, opening: jax.Array, *, method: Method, settings: IcpSettings,
-               search: SearchSettings, points_per_query: int, max_opening_difference_mm: float):
-    """Identify a touch among the maps and localize it in the chosen one, from nothing.
-
-    Returns:
-        the chosen map's index, (M,) the best similarity in every map, and the estimate.
-    """
-    feature = apply_encoder(encoder, pixels[None])[0]
-    chosen, best = identify(library, feature, opening, max_opening_difference_mm=max_opening_difference_mm)
-    query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
-
-    def branch(index):
-        return lambda views, query: localize_query(
-            jax.random.key(0), views[index], query, method, settings=settings, search=search,
-            points_per_query=points_per_query, max_opening_difference_mm=max_opening_difference_mm)
-
-    estimate = jax.lax.switch(chosen, [branch(i) for i in range(len(views))], views, query)
-    return chosen, best, estimate
-
-
-def _touch_program(model: ShapeModel, coordinate_bias: jax.Array | None, encoder: Encoder, library: MapLibrary,
-                   views: tuple[LocalizationMap, ...], image: jax.Array, opening: jax.Array, **options):
-    """One touch, image (H, W, 3) uint8 and opening (mm) in; identity, pose and fit out."""
-    pixels, heightmap, mask, contact = observe(model, image, coordinate_bias)
-    chosen, best, estimate = relocalize(encoder, library, views, pixels, heightmap, mask, opening, **options)
-    return chosen, best, contact, estimate
 
 
 def check_maps(maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder) -> list[TactileMap]:
@@ -145,105 +137,212 @@ def check_maps(maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder) 
     return maps
 
 
-def check_live_method(method: str | Method) -> Method:
-    """The parsed method, after a ValueError if a live loop cannot run it."""
-    method = parse_method(method)
-    if method.kind == "random":
-        raise ValueError("a live localizer needs a retrieval method (cti, cti-icp-N, ...), not random")
-    if method.kind == "belief":
-        raise ValueError("the live localizer does not run the belief yet: use tactojax.localize.update_belief "
-                         "(see the README, 'The pose belief')")
-    return method
-
-
-def check_frame(image: np.ndarray, opening_mm: float, image_shape: tuple[int, ...]) -> np.ndarray:
+def check_frame(image: np.ndarray, opening_mm: float, image_shape: tuple[int, ...], name: str = "frame") -> np.ndarray:
     """The frame as an array, after a ValueError naming what is wrong with it or the opening."""
     image = np.asarray(image)
     if image.shape != image_shape or image.dtype != np.uint8:
-        raise ValueError(f"the localizer takes {image_shape} uint8 RGB frames, got {image.shape} {image.dtype}")
+        raise ValueError(f"the localizer takes {image_shape} uint8 RGB frames, got {image.shape} {image.dtype} "
+                         f"({name})")
     if not np.isfinite(opening_mm) or opening_mm <= 0:
         raise ValueError(f"the gripper opening must be a positive number of mm, got {opening_mm}")
     return image
 
 
-def no_contact(latency_s: float) -> LiveEstimate:
-    """The estimate of a frame without contact: none."""
-    return LiveEstimate(object_id=None, T_object_sensor=None, confidence=0.0, contact=False, similarity=0.0,
-                        identity_margin=0.0, residual_mm=0.0, overlap=0.0, converged=False, latency_s=latency_s)
+def check_gripper_pose(T_world_gripper) -> np.ndarray | None:
+    """The gripper pose as (7,) float32 wxyz_xyz (None stays None), after a ValueError if it is
+    not one finite pose."""
+    if T_world_gripper is None:
+        return None
+    pose = np.asarray(T_world_gripper.wxyz_xyz if isinstance(T_world_gripper, jaxlie.SE3) else T_world_gripper,
+                      np.float32)
+    if pose.shape != (7,) or not np.isfinite(pose).all():
+        raise ValueError(f"the gripper pose must be one finite SE3 (wxyz_xyz (7,)), got shape {pose.shape}")
+    return pose
 
 
-def fit_confidence(residual_mm, overlap, registered):
-    """:attr:`LiveEstimate.confidence` of a fit (numbers or arrays alike)."""
-    confidence = overlap * np.exp(-(np.asarray(residual_mm) / CONFIDENT_RESIDUAL_MM) ** 2)
-    return np.clip(np.where(registered, confidence, 0.0), 0.0, 1.0)
+def _summarise(belief: PoseBelief, modes: int):
+    """What a live estimate reports of a belief: T_world_object (7,), P(within 2 mm), the
+    ``modes`` most probable modes' T_world_object (modes, 7) and probabilities, the log evidence."""
+    _, mass = belief.modes()
+    probability, index = jax.lax.top_k(mass, modes)
+    T_world_modes = belief.T_world_reference @ jax.tree.map(lambda x: x[index], belief.T_object_reference).inverse()
+    return (belief.T_world_object.wxyz_xyz, belief.probability_within(), T_world_modes.wxyz_xyz, probability,
+            belief.log_evidence)
 
 
 class Localizer:
-    """Identify and localize touches against a fixed set of object maps, at camera rate.
+    """Identify and localize a grasped object from camera frames, at camera rate (see the module docstring).
 
-    Built once at start-up (this compiles, typically 10-60 s on a CPU); each call then runs one
-    precompiled program. Not thread-safe: give each thread its own.
+    Built once at start-up (this compiles, typically 10-60 s on a CPU); each frame then runs
+    precompiled programs only. Not thread-safe: give each thread its own.
 
     Args:
         maps: the object maps (features filled by ``encoder``; all of one sensor).
         model: the shape model of the sensor.
         encoder: the feature encoder the maps were built with.
-        method: localization method (see :func:`tactojax.localize.localize`).
-        settings, search: ICP and search parameters.
-        points_per_query: contact points sampled from a touch for ICP.
-        max_opening_difference_mm: CTI's opening filter, mm.
+        calibrations: each map's belief calibration (``tactojax calibrate-belief``; None:
+            uncalibrated). With several maps all beliefs run under their median
+            (:func:`~tactojax.localize.shared_calibration`), so that P(object) compares them.
+        settings: the belief's parameters.
+        live: when a grasp counts as settled.
     """
 
     def __init__(self, maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder, *,
-                 method: str | Method = "cti-icp-5", settings: IcpSettings = IcpSettings(),
-                 search: SearchSettings = SearchSettings(), points_per_query: int = POINTS_PER_QUERY,
-                 max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM):
+                 calibrations: Sequence[BeliefCalibration | None] | None = None,
+                 settings: BeliefSettings = BeliefSettings(), live: LiveSettings = LiveSettings()):
         maps = check_maps(maps, model, encoder)
-        self.method = check_live_method(method)
+        calibrations = [None] * len(maps) if calibrations is None else list(calibrations)
+        if len(calibrations) != len(maps):
+            raise ValueError(f"{len(maps)} maps but {len(calibrations)} calibrations")
+        if len(maps) > 1:
+            calibrations = [shared_calibration(calibrations)] * len(maps)
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
-        # The shape model's per-pixel constant, computed once here rather than in every touch.
-        self._operands = (model, jax.jit(coordinate_bias)(model), encoder, MapLibrary.from_maps(maps),
-                          tuple(LocalizationMap.from_tactile_map(m) for m in maps))
-        program = functools.partial(
-            _touch_program, method=self.method, settings=settings, search=search,
-            points_per_query=points_per_query, max_opening_difference_mm=max_opening_difference_mm)
+        self.settings, self.live = settings, live
+        self.views = tuple(LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations))
         start = time.perf_counter()
-        example = (jax.ShapeDtypeStruct(self.image_shape, jnp.uint8), jax.ShapeDtypeStruct((), jnp.float32))
-        self._compiled = jax.jit(program).lower(*self._operands, *example).compile()
+        image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
+        self._model = (model, jax.jit(coordinate_bias)(model))
+        self._observe = jax.jit(lambda model, bias, image: observe(model, image, bias)[1:]).lower(
+            *self._model, image).compile()
+        self._encoder = encoder
+        self._encode = jax.jit(lambda encoder, image: apply_encoder(encoder, image[None].astype(jnp.float32) / 255.0)[0]
+                               ).lower(encoder, image).compile()
+        example_touch = Touch(heightmap=jax.ShapeDtypeStruct(model.image_shape, jnp.float32),
+                              mask=jax.ShapeDtypeStruct(model.image_shape, jnp.bool_),
+                              feature=jax.ShapeDtypeStruct((encoder.feature_dim,), jnp.float32),
+                              opening=jax.ShapeDtypeStruct((), jnp.float32))
+        pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
+        update = jax.jit(lambda view, belief, touch, T: update_belief(view, belief, touch, T, settings))
+        summarise = jax.jit(lambda belief: _summarise(belief, live.modes))
+        self._empty = tuple(empty_belief(view, settings) for view in self.views)
+        self._update = tuple(update.lower(view, empty, example_touch, pose).compile()
+                             for view, empty in zip(self.views, self._empty))
+        self._summarise = tuple(summarise.lower(empty).compile() for empty in self._empty)
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
-        self.kernels = kernel_count(self._compiled)
-        """Kernels one touch launches (:func:`tactojax._compilation.kernel_count`)."""
+        self.reset()
 
-    def __call__(self, image: np.ndarray, opening_mm: float) -> LiveEstimate:
-        """Identify and localize one touch.
+    def reset(self) -> None:
+        """Forget every touch: the object was released, moved or replaced."""
+        self.beliefs = list(self._empty)
+        """Every map's :class:`~tactojax.localize.PoseBelief` (inspect, plot, or save it)."""
+        self.grasps = 0
+        self._summary = None
+        self._previous = None  # (gripper pose or None, opening) of the previous contact frame
+        self._at_rest = 0
+        self._grasp_used = False
+        self._poses_known = True
+
+    def __call__(self, image: np.ndarray, opening_mm: float, T_world_gripper: jaxlie.SE3 | None = None,
+                 second_image: np.ndarray | None = None) -> LiveEstimate:
+        """One frame.
 
         Args:
-            image: (H, W, 3) uint8 RGB frame of the sensor (rectified, the shape model's size).
+            image: (H, W, 3) uint8 RGB frame of the sensor finger (rectified, the shape model's size).
             opening_mm: gripper opening at the frame, mm.
+            T_world_gripper: the gripper's pose at the frame (:mod:`tactojax.geometry`'s gripper
+                frame), mm, in a frame where the object stays put between grasps. Without it
+                grasps cannot be related: each settled grasp starts a new belief.
+            second_image: the opposite finger's frame at the same instant, if it has a sensor.
         """
         start = time.perf_counter()
         image = check_frame(image, opening_mm, self.image_shape)
-        chosen, best, contact, estimate = jax.device_get(
-            self._compiled(*self._operands, image, np.float32(opening_mm)))
-        return self._summarise(int(chosen), np.asarray(best), bool(contact), estimate,
-                               time.perf_counter() - start)
-
-    def _summarise(self, chosen: int, best: np.ndarray, contact: bool, estimate: PoseEstimate,
-                   latency_s: float) -> LiveEstimate:
+        if second_image is not None:
+            second_image = check_frame(second_image, opening_mm, self.image_shape, "second_image")
+        gripper = check_gripper_pose(T_world_gripper)
+        heightmap, mask, contact = self._observe(*self._model, image)
+        contact = bool(contact)
+        updated = False
         if not contact:
-            return no_contact(latency_s)
-        others = np.delete(best, chosen)
-        finite_others = others[np.isfinite(others)]
-        similarity = float(best[chosen]) if np.isfinite(best[chosen]) else -1.0
-        margin = 1.0 if finite_others.size == 0 else similarity - float(finite_others.max())
-        converged = bool(estimate.converged)
-        residual, overlap = float(estimate.score), float(estimate.overlap)
-        confidence = fit_confidence(residual, overlap, int(estimate.imprint_index) >= 0)
-        return LiveEstimate(
-            object_id=self.object_ids[chosen],
-            T_object_sensor=jaxlie.SE3(np.asarray(estimate.T_object_sensor.wxyz_xyz)),
-            confidence=float(np.clip(confidence, 0.0, 1.0)), contact=True, similarity=similarity,
-            identity_margin=float(margin), residual_mm=residual, overlap=overlap, converged=converged,
-            latency_s=latency_s)
+            self._previous, self._at_rest, self._grasp_used = None, 0, False
+        else:
+            self._at_rest = self._at_rest + 1 if self._still(gripper, opening_mm) else 1
+            self._previous = (gripper, opening_mm)
+            if self._at_rest >= self.live.settle_frames and not self._grasp_used:
+                self._fuse_grasp(image, heightmap, mask, opening_mm, gripper, second_image)
+                self._grasp_used = updated = True
+        return self._estimate(contact, updated, gripper, opening_mm, time.perf_counter() - start)
+
+    def fuse(self, image: np.ndarray, opening_mm: float, T_world_gripper: jaxlie.SE3 | None = None,
+             second_image: np.ndarray | None = None) -> LiveEstimate:
+        """Update the belief with this frame's grasp now, without waiting for it to settle (when
+        the robot knows its grasp is done); a frame without contact changes nothing. The same
+        arguments as a call."""
+        start = time.perf_counter()
+        image = check_frame(image, opening_mm, self.image_shape)
+        if second_image is not None:
+            second_image = check_frame(second_image, opening_mm, self.image_shape, "second_image")
+        gripper = check_gripper_pose(T_world_gripper)
+        heightmap, mask, contact = self._observe(*self._model, image)
+        if bool(contact):
+            self._fuse_grasp(image, heightmap, mask, opening_mm, gripper, second_image)
+            self._previous, self._grasp_used = (gripper, opening_mm), True
+        return self._estimate(bool(contact), bool(contact), gripper, opening_mm, time.perf_counter() - start)
+
+    def _still(self, gripper: np.ndarray | None, opening_mm: float) -> bool:
+        """Whether the gripper is at rest since the previous contact frame."""
+        if self._previous is None:
+            return False
+        previous, previous_opening = self._previous
+        if abs(opening_mm - previous_opening) > self.live.still_opening_mm:
+            return False
+        if gripper is None or previous is None:
+            return gripper is None and previous is None
+        motion = jaxlie.SE3(previous).inverse() @ jaxlie.SE3(gripper)
+        angle = np.rad2deg(np.linalg.norm(np.asarray(motion.rotation().log())))
+        return bool(np.linalg.norm(np.asarray(motion.translation())) <= self.live.still_mm
+                    and angle <= self.live.still_deg)
+
+    def _fuse_grasp(self, image, heightmap, mask, opening_mm, gripper, second_image) -> None:
+        """Update every map's belief with this grasp's touches (sensor finger, then the other)."""
+        if gripper is None or not self._poses_known:  # grasps that cannot be related: start over
+            if self.grasps:
+                self.reset()
+            self._poses_known = gripper is not None
+        T_world_gripper = jaxlie.SE3(jnp.asarray(gripper if gripper is not None else _IDENTITY))
+        opening = np.float32(opening_mm)
+        touches = [(Touch(heightmap=heightmap, mask=mask, feature=self._encode(self._encoder, image), opening=opening),
+                    sensor_pose(T_world_gripper, opening))]
+        if second_image is not None:
+            second_heightmap, second_mask, second_contact = self._observe(*self._model, second_image)
+            if bool(second_contact):
+                touches.append((Touch(heightmap=second_heightmap, mask=second_mask,
+                                      feature=self._encode(self._encoder, second_image), opening=opening),
+                                opposite_sensor_pose(T_world_gripper, opening)))
+        for m, (view, update) in enumerate(zip(self.views, self._update)):
+            for touch, T_world_sensor in touches:
+                self.beliefs[m] = update(view, self.beliefs[m], touch, jaxlie.SE3(T_world_sensor.wxyz_xyz))
+        self.grasps += 1
+        summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, self.beliefs)])
+        log_evidence = np.array([s[4] for s in summaries], np.float64)
+        finite = np.isfinite(log_evidence)
+        if not finite.any():
+            self._summary = None
+            return
+        weights = np.where(finite, np.exp(log_evidence - log_evidence[finite].max()), 0.0)
+        probabilities = weights / weights.sum()
+        chosen = int(np.argmax(probabilities))
+        T_world_object, within, T_modes, mode_probability, _ = summaries[chosen]
+        modes = tuple((jaxlie.SE3(np.asarray(T)), float(p)) for T, p in zip(T_modes, mode_probability) if p > 0)
+        self._summary = (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
+                         jaxlie.SE3(np.asarray(T_world_object)), float(within), modes)
+
+    def _estimate(self, contact: bool, updated: bool, gripper, opening_mm: float, latency_s: float) -> LiveEstimate:
+        if self._summary is None:
+            return LiveEstimate(object_id=None, object_probabilities={name: 0.0 for name in self.object_ids},
+                                T_object_sensor=None, T_world_object=None, probability_within=0.0, modes=(),
+                                contact=contact, grasps=self.grasps, updated=updated, latency_s=latency_s)
+        chosen, probabilities, T_world_object, within, modes = self._summary
+        T_object_sensor = None
+        if gripper is not None or not self._poses_known:
+            T_world_gripper = jaxlie.SE3(np.asarray(gripper if gripper is not None else _IDENTITY))
+            T_world_sensor = sensor_pose(T_world_gripper, np.float32(opening_mm))
+            T_object_sensor = jaxlie.SE3(np.asarray((T_world_object.inverse() @ T_world_sensor).wxyz_xyz))
+        return LiveEstimate(object_id=self.object_ids[chosen], object_probabilities=probabilities,
+                            T_object_sensor=T_object_sensor, T_world_object=T_world_object,
+                            probability_within=within, modes=modes, contact=contact, grasps=self.grasps,
+                            updated=updated, latency_s=latency_s)
+
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], np.float32)

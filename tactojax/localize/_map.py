@@ -1,4 +1,4 @@
-"""What localization reads from a tactile map, and a query imprint."""
+"""What localization reads from a tactile map (:class:`LocalizationMap`), and a touch (:class:`Touch`)."""
 
 from __future__ import annotations
 
@@ -8,19 +8,46 @@ import jaxlie
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax.localize._surface import MapSurface, SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap
 
 MAP_POINTS = 64
-"""Contact points per imprint that a :class:`LocalizationMap` keeps for consistency checks."""
+"""Contact points per imprint that a :class:`LocalizationMap` keeps (registration and tracking)."""
+
+
+@struct.dataclass
+class BeliefCalibration:
+    """The belief's likelihood scales, fit on the map's own touches (:func:`~tactojax.localize.fit_calibration`).
+
+    One touch's log-likelihood at a hypothesis is ``temperature * geometry + appearance *
+    similarity``; the sum over the ``n`` touches a belief holds is scaled by
+    ``n ** -fusion_exponent`` (touches of one object are not independent evidence: 0 would
+    multiply them as if they were, 1 would count them all as one).
+    """
+
+    temperature: Float[Array, ""]
+    """Scale of the geometric log-likelihood (an effective share of independent points)."""
+    appearance: Float[Array, ""]
+    """Weight of the cosine similarity between the touch's features and the stored imprints'."""
+    fusion_exponent: Float[Array, ""]
+    """How much the evidence of several touches is discounted (see above)."""
+
+    @staticmethod
+    def default() -> BeliefCalibration:
+        """Uncalibrated scales (the temperature a map gets before :func:`fit_calibration`)."""
+        return BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(0.0),
+                                 fusion_exponent=jnp.float32(0.0))
 
 
 @struct.dataclass
 class LocalizationMap:
-    """The stored imprints of one object as localization uses them (no images, no names).
+    """One object's map as localization uses it: the stored imprints (no images, no names), the
+    whole map's surface, the object's symmetries and the belief's calibration.
 
-    Correspondences are found by projecting into the stored heightmaps, so nothing is built
-    at query time; the fields are the map's own arrays (no copy). Only ``mm_per_px`` is
-    static, so every map of one sensor and size K shares one compiled localization.
+    Correspondences are found by projecting into the stored heightmaps, and touches are scored
+    against the surface's signed-distance grid, so nothing is built at query time. Only
+    ``mm_per_px`` (and the surface's pitch) is static, so every map of one sensor, size K and
+    surface grid shares one compiled localization.
     """
 
     heightmaps: Float[Array, "K H W"]
@@ -36,24 +63,38 @@ class LocalizationMap:
     imprint_valid: Bool[Array, "K"]
     """Which imprints belong to the map (a map-size study switches imprints off here)."""
     points: Float[Array, "K Q 3"]
-    """A few contact points of every imprint, object frame, mm (consistency checks)."""
+    """A few contact points of every imprint, object frame, mm."""
     normals: Float[Array, "K Q 3"]
     """Unit surface normals at ``points``, object frame."""
     points_valid: Bool[Array, "K Q"]
     """Which of them are real."""
     centres: Float[Array, "K 3"]
     """Centroid of every imprint's contact points, object frame, mm (spatial neighbours)."""
+    surface: MapSurface
+    """The whole map's signed-distance surface (the belief's likelihood reads it)."""
+    symmetries: jaxlie.SE3
+    """(S,) object-frame transforms that map the object onto itself (identity first)."""
+    calibration: BeliefCalibration
+    """The belief's likelihood scales for this map."""
     mm_per_px: float = struct.field(pytree_node=False)
     """Pixel pitch of the heightmaps, mm."""
 
     @staticmethod
-    def from_tactile_map(tactile_map: TactileMap, *, points_per_imprint: int = MAP_POINTS) -> LocalizationMap:
-        """The localization view of a :class:`~tactojax.mapping.TactileMap`.
+    def from_tactile_map(tactile_map: TactileMap, *, calibration: BeliefCalibration | None = None,
+                         symmetries: jaxlie.SE3 | None = None, surface: SurfaceSettings = SurfaceSettings(),
+                         points_per_imprint: int = MAP_POINTS) -> LocalizationMap:
+        """The localization view of a :class:`~tactojax.mapping.TactileMap` (builds its surface
+        on the host: about 1-4 s for the catalog maps).
 
         Args:
             tactile_map: the map.
-            points_per_imprint: contact points kept per imprint for consistency checks (the
-                first ones of the map's random sample).
+            calibration: the belief's scales (:func:`~tactojax.localize.fit_calibration`, stored
+                in the map file by ``tactojax calibrate-belief``; default: uncalibrated).
+            symmetries: (S,) the object's symmetry transforms (default: the catalog's for a
+                catalog object, else none but the identity).
+            surface: how the surface grid is built.
+            points_per_imprint: contact points kept per imprint (the first ones of the map's
+                random sample).
         """
         count = min(points_per_imprint, tactile_map.points.shape[1])
         points_valid = tactile_map.valid[:, :count]
@@ -69,6 +110,9 @@ class LocalizationMap:
             T_object_sensor=tactile_map.T_object_sensor, openings=tactile_map.openings,
             features=features, imprint_valid=tactile_map.imprint_valid,
             points=points, normals=normals, points_valid=points_valid, centres=centres,
+            surface=build_map_surface(tactile_map, surface),
+            symmetries=catalog_symmetries(tactile_map.object_id) if symmetries is None else symmetries,
+            calibration=BeliefCalibration.default() if calibration is None else calibration,
             mm_per_px=float(tactile_map.mm_per_px))
         return jax.tree.map(_strong, view)
 
@@ -88,9 +132,26 @@ class LocalizationMap:
         def pad(x):
             return jnp.concatenate([x, jnp.zeros((extra, *x.shape[1:]), x.dtype)])
 
-        view = jax.tree.map(pad, self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz)))
+        per_imprint = self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz), surface=None,
+                                   symmetries=None, calibration=None)
+        view = jax.tree.map(pad, per_imprint)
         identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (extra, 7))
-        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[count:].set(identity)))
+        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[count:].set(identity)),
+                            surface=self.surface, symmetries=self.symmetries, calibration=self.calibration)
+
+    def imprints_near(self, T_object_sensor: jaxlie.SE3, centre: Float[Array, "3"], count: int, *,
+                      max_facing_deg: float = 60.0) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
+        """The stored imprints that saw the surface where a touch lands: the ``count`` whose
+        contact centres are nearest ``centre`` (object frame, mm), among those whose sensor faced
+        the surface within ``max_facing_deg`` of the touch's sensor at ``T_object_sensor`` (the
+        other side of a thin part is not the same surface). Nearest first; and which are real.
+        The one neighbour rule of registration, tracking and the belief's appearance cue."""
+        axis = T_object_sensor.rotation().as_matrix()[:, 2]
+        axes = self.T_object_sensor.rotation().as_matrix()[..., :, 2]
+        facing = self.imprint_valid & (axes @ axis >= jnp.cos(jnp.deg2rad(max_facing_deg)))
+        score, nearest = jax.lax.top_k(jnp.where(facing, -jnp.linalg.norm(self.centres - centre, axis=-1), -jnp.inf),
+                                       count)
+        return nearest, jnp.isfinite(score)
 
     def with_imprint_valid(self, imprint_valid: Bool[Array, "K"]) -> LocalizationMap:
         """The same map with only ``imprint_valid & self.imprint_valid`` imprints in it."""
@@ -101,11 +162,14 @@ class LocalizationMap:
 
 
 @struct.dataclass
-class Query:
-    """A new tactile imprint to localize: its predicted local shape, features and opening."""
+class Touch:
+    """One touch of one finger: its predicted local shape, features and gripper opening.
+
+    Its sensor pose comes separately, from the robot's kinematics (see
+    :func:`~tactojax.localize.localize`)."""
 
     heightmap: Float[Array, "H W"]
-    """Predicted heightmap, mm, query sensor frame."""
+    """Predicted heightmap, mm, in the touch's sensor frame."""
     mask: Bool[Array, "H W"]
     """Predicted contact mask."""
     feature: Float[Array, "F"]
@@ -122,13 +186,13 @@ def _strong(x):
     return jnp.asarray(x, dtype=x.dtype)
 
 
-def canonical_query(query: Query) -> Query:
-    """The query with strongly typed arrays (a Python float opening would recompile)."""
-    mask = query.mask
+def canonical_touch(touch: Touch) -> Touch:
+    """The touch with strongly typed arrays (a Python float opening would recompile)."""
+    mask = touch.mask
     if not (isinstance(mask, jax.Array) and mask.dtype == bool):
         mask = jnp.asarray(mask, bool)
-    return Query(heightmap=_strong(query.heightmap), mask=mask,
-                 feature=_strong(query.feature), opening=_strong(query.opening))
+    return Touch(heightmap=_strong(touch.heightmap), mask=mask,
+                 feature=_strong(touch.feature), opening=_strong(touch.opening))
 
 
 def as_localization_map(tactile_map: TactileMap | LocalizationMap) -> LocalizationMap:
@@ -138,8 +202,16 @@ def as_localization_map(tactile_map: TactileMap | LocalizationMap) -> Localizati
     return LocalizationMap.from_tactile_map(tactile_map)
 
 
-def map_query(tactile_map: TactileMap | LocalizationMap, index: int | Int[Array, ""]) -> Query:
-    """Imprint ``index`` of a map as a query (leave-one-out evaluation)."""
-    view = as_localization_map(tactile_map)
-    return Query(heightmap=view.heightmaps[index], mask=view.masks[index],
+def map_touch(view: LocalizationMap, index: int | Int[Array, ""]) -> Touch:
+    """Imprint ``index`` of a map as a touch (leave-one-out evaluation)."""
+    return Touch(heightmap=view.heightmaps[index], mask=view.masks[index],
                  feature=view.features[index], opening=view.openings[index])
+
+
+def catalog_symmetries(object_id: str) -> jaxlie.SE3:
+    """(S,) the catalog object's symmetry transforms; the identity alone outside the catalog."""
+    from tactojax.objects import CATALOG, get_object
+
+    if object_id not in CATALOG:
+        return jaxlie.SE3.identity((1,))
+    return get_object(object_id).symmetry.transforms()

@@ -23,12 +23,10 @@ from flax import struct
 from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
-from tactojax.localize._belief import WITHIN_MM, BeliefCalibration, BeliefSettings, empty_belief, update_belief
+from tactojax.localize._baselines import baseline_estimate, parse_method
+from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import moment_rmse
-from tactojax.localize._likelihood import touch_evidence
-from tactojax.localize._map import LocalizationMap, Query
-from tactojax.localize._methods import localize_query, parse_method
-from tactojax.localize._surface import MapSurface
+from tactojax.localize._map import LocalizationMap, Touch
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
@@ -125,9 +123,9 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_query", "settings"))
-def _single_touches(view: LocalizationMap, surface: MapSurface | None, episodes: TestEpisodes, symmetries,
-                    calibration: BeliefCalibration, method, points_per_query: int, settings: BeliefSettings):
+@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings"))
+def _single_touches(view: LocalizationMap, episodes: TestEpisodes, method, points_per_touch: int,
+                    settings: BeliefSettings):
     """Every grasp's sensor-finger touch alone: (E * G,) errors."""
     take = lambda x: x[:, :, 0].reshape(-1, *x.shape[3:])  # noqa: E731
     heightmaps, masks, features = take(episodes.heightmaps), take(episodes.masks), take(episodes.features)
@@ -136,121 +134,98 @@ def _single_touches(view: LocalizationMap, surface: MapSurface | None, episodes:
     mean, covariance = take(episodes.cloud_mean), take(episodes.cloud_covariance)
 
     def one(heightmap, mask, feature, opening, T, m, c):
+        touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
         if method.kind == "belief":
-            evidence = touch_evidence(heightmap, mask, view.mm_per_px)
-            empty = empty_belief(settings, *_sizes(evidence), feature.shape[0], symmetries=symmetries,
-                                 calibration=calibration)
-            belief = update_belief(view, surface, empty, evidence, feature, opening, jaxlie.SE3.identity(), settings)
+            belief = update_belief(view, empty_belief(view, settings), touch, jaxlie.SE3.identity(), settings)
             estimate, probability = belief.best, belief.probability_within()
             nll, covered = belief.truth_scores(T)
         else:
-            query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
-            estimate = localize_query(jax.random.key(0), view, query, method,
-                                      points_per_query=points_per_query).T_object_sensor
+            estimate = baseline_estimate(jax.random.key(0), view, touch, method,
+                                         points_per_touch=points_per_touch).T_object_sensor
             probability, nll, covered = jnp.float32(jnp.nan), jnp.float32(jnp.nan), jnp.bool_(False)
         one_touch = lambda x: x[None]  # noqa: E731
         errors = _errors(jax.tree.map(one_touch, T), jax.tree.map(one_touch, estimate), m[None], c[None],
-                         jnp.ones(1, bool), symmetries)
+                         jnp.ones(1, bool), view.symmetries)
         return (*errors, probability, nll, covered)
 
     return jax.lax.map(lambda args: one(*args), (heightmaps, masks, features, openings, T_true, mean, covariance),
                        batch_size=8)
 
 
-def _sizes(evidence):
-    return evidence.contact.shape[0], evidence.free.shape[0]
+def episode_touch(episode: TestEpisodes, g, finger: int) -> Touch:
+    """Grasp ``g``'s touch of finger ``finger`` in one episode."""
+    return Touch(heightmap=episode.heightmaps[g, finger], mask=episode.masks[g, finger],
+                 feature=episode.features[g, finger], opening=episode.openings[g])
 
 
-def fuse_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries: jaxlie.SE3,
-                 calibration: BeliefCalibration, fingers: int, settings: BeliefSettings, observe):
-    """Fuse an episode's grasps into one belief, grasp by grasp (``fingers`` touches each, related
-    by the kinematics to the first touch), and return ``observe(belief, g)`` after every grasp
+def fuse_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings, observe):
+    """Fuse an episode's grasps into one belief, grasp by grasp (``fingers`` touches each, at
+    their sensor poses: the kinematics), and return ``observe(belief, g)`` after every grasp
     ``g``, stacked along a leading (G,) axis. Pure; the callers jit it.
 
     To observe after every touch, pass the episode as G x F grasps of one finger each.
     """
-    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
-    evidence = jax.vmap(jax.vmap(lambda h, m: touch_evidence(h, m, view.mm_per_px)))(episode.heightmaps,
-                                                                                       episode.masks)
-    belief = empty_belief(settings, *_sizes(jax.tree.map(lambda x: x[0, 0], evidence)), episode.features.shape[-1],
-                          symmetries=symmetries, calibration=calibration)
-
     def grasp(belief, g):
         for finger in range(fingers):
             T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
-            belief = update_belief(view, surface, belief, jax.tree.map(lambda x: x[g, finger], evidence),
-                                   episode.features[g, finger], episode.openings[g], T_reference.inverse() @ T_touch,
-                                   settings)
+            belief = update_belief(view, belief, episode_touch(episode, g, finger), T_touch, settings)
         return belief, observe(belief, g)
 
-    _, out = jax.lax.scan(grasp, belief, jnp.arange(episode.openings.shape[0]))
+    _, out = jax.lax.scan(grasp, empty_belief(view, settings), jnp.arange(episode.openings.shape[0]))
     return out
 
 
 @functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _fused_episode(view: LocalizationMap, surface: MapSurface, episode: TestEpisodes, symmetries,
-                   calibration: BeliefCalibration, fingers: int, settings: BeliefSettings):
+def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings):
     """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
     grasps = episode.openings.shape[0]
-    T_reference = jax.tree.map(lambda x: x[0, 0], episode.T_object_sensor)
 
     def observe(belief, g):
-        # Error over every touch fused so far (grasps 0..g, the fingers used).
+        # Error over every touch fused so far (grasps 0..g, the fingers used). The sensor poses
+        # are given in the object frame here, so the belief's world frame is the object's.
         T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
-        T_estimate = belief.best @ (T_reference.inverse() @ T_true)
+        T_estimate = belief.sensor_pose(T_true)
         valid = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
         errors = _errors(T_true, T_estimate, episode.cloud_mean[:, :fingers].reshape(-1, 3),
-                         episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, symmetries)
-        return (*errors, belief.probability_within(), *belief.truth_scores(T_reference))
+                         episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, view.symmetries)
+        return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
 
-    return fuse_episode(view, surface, episode, symmetries, calibration, fingers, settings, observe)
+    return fuse_episode(view, episode, fingers, settings, observe)
 
 
 def evaluate_new_grasps(
     view: LocalizationMap,
-    surface: MapSurface | None,
     episodes: TestEpisodes,
     methods=("cti-icp-5", "belief"),
     *,
     fingers: int = 1,
-    symmetries: jaxlie.SE3 | None = None,
-    calibration: BeliefCalibration | None = None,
     settings: BeliefSettings = BeliefSettings(),
-    points_per_query: int = 128,
+    points_per_touch: int = 128,
     progress: bool = False,
 ) -> list[EpisodeErrors]:
     """Single-touch errors of every method, and the belief fused over 1..G grasps.
 
     Args:
-        view: the object's map.
-        surface: its surface (:func:`~tactojax.localize.build_map_surface`; needed by the belief).
+        view: the object's map (its symmetries and calibration are used).
         episodes: the test grasps (:class:`TestEpisodes`, F >= ``fingers``).
-        methods: method names (``"belief"`` or any :func:`~tactojax.localize.localize` method).
+        methods: method names (``"belief"`` or a baseline of
+            :func:`~tactojax.localize.localize_baseline`).
         fingers: fingers fused per grasp (1 or 2).
-        symmetries: (S,) the object's symmetry transforms (default: the identity).
-        calibration: the map's likelihood scales (default: uncalibrated).
         settings: belief parameters.
-        points_per_query: query points of the ICP methods.
+        points_per_touch: contact points of the ICP baselines.
         progress: show progress bars.
 
     Returns:
         one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1),
         then, for the belief, one per number of fused grasps with ``fingers`` fingers.
     """
-    if symmetries is None:
-        symmetries = jaxlie.SE3.identity((1,))
-    if calibration is None:
-        calibration = BeliefCalibration.default()
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
     results = []
     for name in tqdm(methods, desc="single touches", disable=not progress):
         method = parse_method(name)
-        if method.kind == "belief" and surface is None:
-            raise ValueError("the belief needs the map's surface (build_map_surface)")
-        out = jax.device_get(_single_touches(view, surface, episodes, symmetries, calibration, method,
-                                             points_per_query, settings))
+        out = jax.device_get(_single_touches(view, episodes, method, points_per_touch, settings))
         results.append(EpisodeErrors(method.name, 1, 1, False, *(np.asarray(x) for x in out)))
     if any(parse_method(name).kind == "belief" for name in methods):
         count, grasps = episodes.openings.shape
@@ -258,8 +233,7 @@ def evaluate_new_grasps(
         for e in tqdm(range(count), desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})",
                       disable=not progress):
             episode = jax.tree.map(lambda x: x[e], episodes)
-            per_episode.append(jax.device_get(_fused_episode(view, surface, episode, symmetries, calibration, fingers,
-                                                             settings)))
+            per_episode.append(jax.device_get(_fused_episode(view, episode, fingers, settings)))
         stacked = [np.stack([p[i] for p in per_episode]) for i in range(7)]  # (E, G) each
         for g in range(grasps):
             results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))

@@ -82,13 +82,14 @@ class MapSurface:
 
 
 def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = SurfaceSettings(), *,
-                      exclude: int = -1) -> MapSurface:
+                      exclude: int | np.ndarray = -1) -> MapSurface:
     """The signed-distance grid of a map's stored contact points (see the module docstring).
 
     Args:
         tactile_map: the map (its ``points``, ``normals``, ``valid`` and poses are read).
         settings: grid pitch, reach and margin.
-        exclude: an imprint left out (leave-one-out), -1 for none.
+        exclude: an imprint left out (leave-one-out), -1 for none, or a (K,) mask of imprints
+            left out (a held-out fold).
 
     Returns:
         the :class:`MapSurface` (an empty map gives a one-cell grid that knows nothing).
@@ -97,7 +98,9 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
     from scipy.spatial import cKDTree
 
     valid = np.asarray(tactile_map.point_valid).copy()
-    if exclude >= 0:
+    if np.ndim(exclude) == 1:
+        valid[np.asarray(exclude, bool)] = False
+    elif exclude >= 0:
         valid[exclude] = False
     points = np.asarray(tactile_map.points_object, np.float64)[valid]
     normals = np.asarray(tactile_map.normals_object, np.float64)[valid]
