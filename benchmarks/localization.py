@@ -1,4 +1,4 @@
-"""Localization speed and accuracy per touch, against Open3D's ICP in the same run (issue 5).
+"""The paper's CTI-ICP-N per touch: speed and accuracy against Open3D's ICP in the same run (issue 5).
 
 One map of >= 500 imprints (default: the YCB scissors on the paper's 10 mm protocol). Each
 stage of a touch is timed on its own after compilation (steady-state median over ``--calls``
@@ -35,9 +35,12 @@ from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
 from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, resolve_encoder,
                          resolve_shape_model, simulate_to_dataset, read_grasps)
-from tactojax.localize import (
-    IcpSettings, LocalizationMap, closest_imprints, estimate_pose, localize, map_query, parse_method, query_points,
-)
+from tactojax.localize import IcpSettings, LocalizationMap, localize_baseline
+# The stages of the baseline, timed apart and handed to Open3D (not the public API):
+from tactojax.localize._baselines import estimate_pose, parse_method
+from tactojax.localize._map import map_touch
+from tactojax.localize._points import contact_points
+from tactojax.localize._retrieval import closest_imprints
 from tactojax.mapping import build_tactile_map
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
@@ -126,7 +129,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     order = rng.choice(valid, size=args.calls, replace=True)
     image = jnp.asarray(tactile_map.images[int(order[0])], jnp.float32) / 255.0
-    query = map_query(view, int(order[0]))
+    query = map_touch(view, int(order[0]))
     key = jax.random.key(0)
 
     # Stage timings, each jitted function on its own.
@@ -137,22 +140,22 @@ def main() -> None:
                                                            q.feature, q.opening, args.n, exclude=exclude))
     stages["retrieval"] = timed(lambda: retrieve(query, 0), 200)
     indices, _, index_valid = retrieve(query, int(order[0]))
-    sample = jax.jit(lambda q: query_points(q, view.mm_per_px))
+    sample = jax.jit(lambda q: contact_points(q, view.mm_per_px))
     points, points_valid = sample(query)
-    register = jax.jit(lambda q, p, pv, i, iv: estimate_pose(view, q, p, pv, i, iv, method, settings=settings))
-    stages["registration"] = timed(lambda: register(query, points, points_valid, indices, index_valid), 200)
+    register = jax.jit(lambda p, pv, i, iv: estimate_pose(view, p, pv, i, iv, method, settings=settings))
+    stages["registration"] = timed(lambda: register(points, points_valid, indices, index_valid), 200)
 
     # End to end (retrieval + registration), many different touches, counting recompilations.
-    # Each touch's query (heightmap, mask, features, opening) is taken from the map first: the
-    # timed call is what a control loop runs once it has them.
+    # Each touch (heightmap, mask, features, opening) is taken from the map first: the timed
+    # call is what a control loop runs once it has them.
     def one_touch(call, touch, index):
-        return localize(jax.random.fold_in(key, call), view, touch, method=method, exclude=int(index))
+        return localize_baseline(jax.random.fold_in(key, call), view, touch, method=method, exclude=int(index))
 
-    jax.block_until_ready(one_touch(0, map_query(view, int(order[0])), order[0]))  # compile
+    jax.block_until_ready(one_touch(0, map_touch(view, int(order[0])), order[0]))  # compile
     times = []
     with CompilationCounter() as counter:
         for call, index in tqdm(list(enumerate(order)), desc="localize", unit="touch"):
-            touch = jax.block_until_ready(map_query(view, int(index)))
+            touch = jax.block_until_ready(map_touch(view, int(index)))
             start = time.perf_counter()
             jax.block_until_ready(one_touch(call, touch, index))
             times.append(time.perf_counter() - start)
@@ -165,9 +168,9 @@ def main() -> None:
     T_all = np.asarray(tactile_map.T_object_sensor.as_matrix())
     jax_errors, o3d_errors, o3d_times, jax_times = [], [], [], []
     for index in queries:
-        touch = map_query(view, int(index))
+        touch = map_touch(view, int(index))
         start = time.perf_counter()
-        estimate = jax.block_until_ready(localize(key, view, touch, method=method, exclude=int(index)))
+        estimate = jax.block_until_ready(localize_baseline(key, view, touch, method=method, exclude=int(index)))
         jax_times.append(time.perf_counter() - start)
         cloud = np.asarray(tactile_map.points[index])[np.asarray(tactile_map.valid[index])]
         jax_errors.append(cloud_rmse(cloud, T_all[index], np.asarray(estimate.T_object_sensor.as_matrix())))

@@ -5,12 +5,16 @@ For leave-one-out queries of each map (issue 5's <= 2 mm target), this separates
 - **retrieval**: how often the N most similar imprints (CTI: cosine similarity of features,
   openings within 2 mm) include a true neighbour, an imprint whose pose is within 3 mm (cloud
   RMSE) of the best any stored imprint offers (``recall@N``);
-- **registration**: cti-search-N started from the truly nearest imprints instead (oracle
-  retrieval): what the search and ICP reach when retrieval is perfect;
-- **ambiguity**: for every cti-search-N estimate more than 5 mm off, whether the map supports
-  it at least as well as the true pose (:func:`~tactojax.localize.verification_score`, the
-  check that picks the search's winner). Such a touch fits two places on the object equally
-  well, so no choice among the hypotheses can be trusted to find the right one.
+- **registration**: the paper's CTI-ICP-N with retrieval as it is and started from the truly
+  nearest imprints instead (oracle retrieval): what ICP reaches when retrieval is perfect;
+- **ambiguity**: the pose belief (:func:`~tactojax.localize.localize`, its queries held out of
+  the map's surface fold by fold) over the same queries, and for every belief more than 5 mm
+  off, whether it *knew*: a touch that fits two places on the object equally well cannot be
+  localized by any choice among the hypotheses, but a calibrated belief then says so (a low
+  P(within 2 mm)); a wrong belief with P(within 2 mm) > 0.5 is a confident mistake.
+
+Errors are the paper's cloud RMSE up to the object's symmetry (the catalog's). A map's stored
+belief calibration (``tactojax calibrate-belief``) is used when it has one.
 
     python benchmarks/localization_ceiling.py scissors.npz screwdriver.npz --queries 200 --json ceiling.json
 
@@ -22,17 +26,17 @@ from __future__ import annotations
 import argparse
 
 import jax
-import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from tqdm.auto import tqdm
 
 from tactojax.features import encode_images
-from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder
-from tactojax.localize import (
-    LocalizationMap, SearchSettings, closest_imprints, cloud_moments, cloud_rmse, evaluate_localization, localize,
-    map_query, moment_rmse, oracle_imprints, query_points, verification_score,
-)
+from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, tactile_map_metadata
+from tactojax.localize import LocalizationMap, calibration_from_json, evaluate_localization
+# Retrieval and the oracle's nearest imprints, looked at apart (not the public API):
+from tactojax.localize._evaluate import cloud_moments, moment_rmse, oracle_imprints
+from tactojax.localize._map import map_touch
+from tactojax.localize._retrieval import closest_imprints
 
 try:  # run as ``python benchmarks/localization_ceiling.py`` or as a module
     from benchmarks._common import format_table, machine_info, write_json
@@ -43,6 +47,8 @@ NEAR_MM = 3.0
 """A retrieved imprint is a true neighbour within this of the best stored pose (cloud RMSE), mm."""
 WRONG_MM = 5.0
 """An estimate further off than this (cloud RMSE) counts as a wrong place, mm."""
+SURE = 0.5
+"""A wrong belief with P(within 2 mm) above this was a confident mistake."""
 
 
 def pose_rmse_to_every_imprint(tactile_map, view: LocalizationMap, query: int) -> np.ndarray:
@@ -56,7 +62,7 @@ def pose_rmse_to_every_imprint(tactile_map, view: LocalizationMap, query: int) -
 def retrieved_near(tactile_map, view: LocalizationMap, index: int, retrieve: int) -> np.ndarray:
     """(retrieve,) bool: which of the ``retrieve`` most similar imprints (CTI, query ``index``
     left out) are true neighbours, their pose within ``NEAR_MM`` of the best stored pose (cloud RMSE)."""
-    query = map_query(view, index)
+    query = map_touch(view, index)
     rmse = pose_rmse_to_every_imprint(tactile_map, view, index)
     indices, _, valid = jax.device_get(closest_imprints(view.features, view.openings, view.imprint_valid,
                                                         query.feature, query.opening, retrieve, exclude=index))
@@ -81,45 +87,27 @@ def retrieval_recall(tactile_map, queries: np.ndarray, recall_at=(1, 5, 15, 50),
     return {str(k): float(np.mean(v)) for k, v in has_near.items()}
 
 
-def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50)) -> dict:
+def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50), *, calibration=None,
+            folds: int = 10) -> dict:
     """The three diagnostics of the module docstring for one map (a JSON-ready dict)."""
-    view = LocalizationMap.from_tactile_map(tactile_map)
-    count = len(view)
-    settings = SearchSettings()
-    method = f"cti-search-{n}"
-    retrieve = min(max(recall_at), count)
-
-    @jax.jit
-    def scores(query, exclude, T_estimate, T_true):
-        points, points_valid = query_points(query, view.mm_per_px)
-        available = view.imprint_valid & (jnp.arange(count) != exclude)
-        def score(T):
-            return verification_score(view, query.heightmap, query.mask, points, points_valid, T, available, settings)
-        return score(T_estimate), score(T_true)
-
-    has_near = {k: [] for k in recall_at}
-    errors, ambiguous = [], []
     key = jax.random.key(0)
-    for index in tqdm(queries.tolist(), desc=f"{tactile_map.object_id} {method}", unit="touch"):
-        query = map_query(view, index)
-        near = retrieved_near(tactile_map, view, index, retrieve)
-        T_true = jaxlie.SE3(view.T_object_sensor.wxyz_xyz[index])
-        for k in recall_at:
-            has_near[k].append(bool(near[:k].any()))
-        estimate = localize(key, view, query, method=method, exclude=index)
-        error = float(cloud_rmse(tactile_map.points[index], tactile_map.valid[index], T_true, estimate.T_object_sensor))
-        errors.append(error)
-        if error > WRONG_MM:
-            at_estimate, at_truth = jax.device_get(scores(query, index, estimate.T_object_sensor, T_true))
-            ambiguous.append(bool(at_estimate >= at_truth))
-    oracle = evaluate_localization(key, tactile_map, [method], queries=queries, oracle=True)[method]
-    errors = np.asarray(errors)
+    method = f"cti-icp-{n}"
+    recall = retrieval_recall(tactile_map, queries, recall_at)
+    results = evaluate_localization(key, tactile_map, [method, "belief"], calibration=calibration, queries=queries,
+                                    folds=folds, progress=True)
+    oracle = evaluate_localization(key, tactile_map, [method], queries=queries, oracle=True, progress=True)[method]
+    registered, belief = results[method], results["belief"]
+    wrong = belief.symmetric_rmse > WRONG_MM
+
+    def stats(errors):
+        return {"median_rmse_mm": float(np.median(errors)), "within_2mm": float(np.mean(errors <= 2.0))}
+
     return {
-        "object": tactile_map.object_id, "queries": len(queries), "method": method,
-        "recall": {str(k): float(np.mean(v)) for k, v in has_near.items()},
-        "median_rmse_mm": float(np.median(errors)), "within_2mm": float(np.mean(errors <= 2.0)),
-        "oracle_median_rmse_mm": float(np.median(oracle.rmse)), "oracle_within_2mm": float(np.mean(oracle.rmse <= 2.0)),
-        "wrong": len(ambiguous), "wrong_fitting_as_well_as_truth": float(np.mean(ambiguous)) if ambiguous else 0.0,
+        "object": tactile_map.object_id, "queries": len(queries), "method": method, "recall": recall,
+        "registration": stats(registered.symmetric_rmse), "oracle_registration": stats(oracle.symmetric_rmse),
+        "belief": {**stats(belief.symmetric_rmse), "mean_p_within_2mm": float(np.mean(belief.probability))},
+        "belief_wrong": int(wrong.sum()),
+        "belief_wrong_but_sure": float(np.mean(belief.probability[wrong] > SURE)) if wrong.any() else 0.0,
     }
 
 
@@ -127,7 +115,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("maps", nargs="+", help="saved maps (.npz)")
     parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="for maps without features (default: the CLI's)")
-    parser.add_argument("--n", type=int, default=5, help="N of cti-search-N (default 5)")
+    parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N (default 5)")
+    parser.add_argument("--folds", type=int, default=10, help="the belief's queries are held out of the map's "
+                                                               "surface in this many folds (default 10)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries per map (default 200)")
     parser.add_argument("--json", metavar="PATH")
     args = parser.parse_args()
@@ -140,19 +130,25 @@ def main() -> None:
                                                                   progress=True))
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
         queries = np.sort(np.random.default_rng(0).choice(valid, size=min(args.queries, len(valid)), replace=False))
-        results.append(ceiling(tactile_map, args.n, queries))
+        stored = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+        calibration = None if stored is None else calibration_from_json(stored)
+        results.append(ceiling(tactile_map, args.n, queries, calibration=calibration, folds=args.folds))
 
     recall_keys = list(results[0]["recall"])
+
+    def cell(entry):
+        return f"{entry['median_rmse_mm']:.2f} mm, {100 * entry['within_2mm']:.0f} %"
+
     headers = (["object", "queries"] + [f"recall@{k}" for k in recall_keys]
-               + [f"cti-search-{args.n}: median, <= 2 mm", "oracle retrieval: median, <= 2 mm",
-                  "wrong estimates that fit as well as the truth"])
+               + [f"CTI-ICP-{args.n}: median, <= 2 mm", "oracle retrieval: median, <= 2 mm",
+                  "belief: median, <= 2 mm", f"wrong beliefs (> {WRONG_MM:g} mm) with P > {SURE:g}"])
     rows = [[r["object"], r["queries"]] + [f"{100 * r['recall'][k]:.0f} %" for k in recall_keys]
-            + [f"{r['median_rmse_mm']:.1f} mm, {100 * r['within_2mm']:.0f} %",
-               f"{r['oracle_median_rmse_mm']:.2f} mm, {100 * r['oracle_within_2mm']:.0f} %",
-               f"{100 * r['wrong_fitting_as_well_as_truth']:.0f} % of {r['wrong']}"] for r in results]
+            + [cell(r["registration"]), cell(r["oracle_registration"]), cell(r["belief"]),
+               f"{100 * r['belief_wrong_but_sure']:.0f} % of {r['belief_wrong']}"] for r in results]
     print(format_table(headers, rows))
+    print("errors: cloud RMSE up to the object's symmetry")
     if args.json:
-        write_json(args.json, {"results": results, "near_mm": NEAR_MM, "wrong_mm": WRONG_MM,
+        write_json(args.json, {"results": results, "near_mm": NEAR_MM, "wrong_mm": WRONG_MM, "sure": SURE,
                                "machine": machine_info()})
         print(f"wrote {args.json}")
 

@@ -4,17 +4,20 @@ An object slides and turns in the grasp (``tactojax simulate --protocol slip``: 
 up to 0.5 mm and 1 degree of slip per frame, 200 frames per sequence). Every frame goes through
 
 - **tracking** (:class:`tactojax.localize.Tracker`, what ``localize-live`` runs): the first frame
-  localized from nothing, then followed, re-localized only when the fit degrades;
+  localized from nothing (the belief of that one touch: the grasp counts as settled at once),
+  then followed, re-localized only when the fit degrades;
 - **tracking from the true start**: the same, with the track started at the true pose of frame
   0 (``Tracker.start``), which separates how well it follows from how well it starts;
 - **tracking from the fused belief**: the track started where a pose belief puts frame 0, as a
   robot would before lifting the object: ``--belief-grasps`` earlier grasps of the object where
   it stands (both fingers; a new-grasps episode at the sequence's object placement, simulated
   with a seed of its own) and the sequence's first frame itself are fused by
-  :func:`tactojax.localize.update_belief` (against the map's surface,
-  :func:`tactojax.localize.build_map_surface`, with the object's symmetries), the touches
-  related by the kinematics;
-- **re-localizing every frame** (:class:`tactojax.localize.Localizer`).
+  :func:`tactojax.localize.localize` (with the object's symmetries), the touches related by the
+  kinematics;
+- **re-localizing every frame** (:class:`tactojax.localize.Localizer`: a new belief from each
+  frame's touch alone, ``reset`` then ``fuse``).
+
+Every frame goes with the gripper's pose at that frame (the slip sets record it).
 
 Reported per mode: position error of the sensor pose (mm) over all frames, over the frames
 whose touch is at least ``TrackingSettings.min_relocalize_px`` contact pixels and over the
@@ -44,8 +47,8 @@ from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.io import (DEFAULT_ENCODER, load_test_episodes, open_dataset, read_grasps, read_test_grasps,
                          resolve_encoder, resolve_shape_model, simulate_to_dataset)
-from tactojax.localize import (BeliefSettings, LocalizationMap, Localizer, Tracker, TrackingSettings,
-                               build_map_surface, empty_belief, touch_evidence, update_belief)
+from tactojax.localize import LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize
+from tactojax.localize._localizer import LiveSettings  # (the settings type of Localizer's ``live``)
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
@@ -83,7 +86,8 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
     New-grasps episodes (``grasps`` grasps x 2 fingers, seed ``seed``), simulated at each object
     turn the sequences start from, give each sequence an episode at its object placement; its
     touches and the sequence's first frame are fused, related by their sensor poses (the
-    kinematics: the object stands still until the sequence starts slipping).
+    kinematics: the object stands still until the sequence starts slipping); the episode's sensor
+    poses and the frame's are all given in the object frame (the belief's world is the object's).
 
     Returns:
         {sequence: (7,) wxyz_xyz of frame 0's sensor pose, object frame} and {sequence: the
@@ -106,12 +110,7 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
         episodes, _ = load_test_episodes(path, name, model, encoder, progress=False)
         placement = read_test_grasps(path, ["T_world_object"], object_id=name)["T_world_object"][:: grasps * 2]
         episodes_at[turn] = [episodes, placement, list(range(len(placement)))]
-    view = LocalizationMap.from_tactile_map(tactile_map)
-    surface = build_map_surface(tactile_map)
-    symmetries = get_object(name).symmetry.transforms()
-    settings = BeliefSettings()
-    update = jax.jit(update_belief, static_argnames=("settings",))
-    evidence_of = jax.jit(lambda h, m: touch_evidence(h, m, view.mm_per_px))
+    view = LocalizationMap.from_tactile_map(tactile_map)  # the catalog object's symmetries
 
     @jax.jit
     def observe(image):
@@ -127,34 +126,45 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
         e = unused.pop(0)
         if not np.allclose(placement[e], data["T_world_object"][row], atol=1e-3):
             raise RuntimeError(f"episode {e} does not stand where sequence {sequence} starts")
-        T_reference = jax.tree.map(lambda x: x[e, 0, 0], episodes.T_object_sensor)
-        evidence = evidence_of(episodes.heightmaps[e, 0, 0], episodes.masks[e, 0, 0])
-        belief = empty_belief(settings, evidence.contact.shape[0], evidence.free.shape[0], view.features.shape[1],
-                              symmetries=symmetries)
+        touches, poses = [], []
         for g in range(grasps):
             for f in range(2):
-                T_touch = jax.tree.map(lambda x: x[e, g, f], episodes.T_object_sensor)
-                belief = update(view, surface, belief, evidence_of(episodes.heightmaps[e, g, f], episodes.masks[e, g, f]),
-                                episodes.features[e, g, f], episodes.openings[e, g], T_reference.inverse() @ T_touch,
-                                settings)
+                touches.append(Touch(heightmap=episodes.heightmaps[e, g, f], mask=episodes.masks[e, g, f],
+                                     feature=episodes.features[e, g, f], opening=episodes.openings[e, g]))
+                poses.append(jax.tree.map(lambda x: x[e, g, f], episodes.T_object_sensor))
         T_first = jaxlie.SE3(jnp.asarray(data["T_object_sensor"][row]))  # the kinematics, relative to the episode
-        T_reference_first = T_reference.inverse() @ T_first
         heightmap, mask = observe(data["image"][row])
         feature = encode_images(encoder, data["image"][row][None], progress=False)[0]
-        belief = update(view, surface, belief, evidence_of(heightmap, mask), jnp.asarray(feature),
-                        jnp.float32(data["opening_mm"][row]), T_reference_first, settings)
-        starts[sequence] = np.asarray((belief.best @ T_reference_first).wxyz_xyz)
+        touches.append(Touch(heightmap=heightmap, mask=mask, feature=jnp.asarray(feature),
+                             opening=jnp.float32(data["opening_mm"][row])))
+        try:
+            belief = localize(view, touches, poses + [T_first])
+        except ValueError as error:  # no touch with contact
+            print(f"no belief start for sequence {sequence}: {error}")
+            continue
+        starts[sequence] = np.asarray(belief.sensor_pose(T_first).wxyz_xyz)
         confidence[sequence] = float(belief.probability_within())
     return starts, confidence
 
 
-def run_sequence(estimator, images, openings) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+class EveryFrame:
+    """Re-localize every frame: a new belief from the frame's touch alone."""
+
+    def __init__(self, localizer: Localizer):
+        self.localizer = localizer
+
+    def __call__(self, image, opening_mm, T_world_gripper):
+        self.localizer.reset()
+        return self.localizer.fuse(image, opening_mm, T_world_gripper)
+
+
+def run_sequence(estimator, images, openings, grippers) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(F, 7) estimated poses (NaN without one), (F,) latency s, (F,) tracked, (F,) relocalized."""
     poses = np.full((len(images), 7), np.nan)
     latency, tracked, relocalized = np.zeros(len(images)), np.zeros(len(images), bool), np.zeros(len(images), bool)
-    for k, (image, opening) in enumerate(zip(images, openings)):
+    for k, (image, opening, gripper) in enumerate(zip(images, openings, grippers)):
         before = getattr(estimator, "relocalizations", k)
-        estimate = estimator(image, float(opening))
+        estimate = estimator(image, float(opening), jaxlie.SE3(gripper))
         latency[k], tracked[k] = estimate.latency_s, estimate.tracked
         relocalized[k] = getattr(estimator, "relocalizations", k + 1) > before
         if estimate.T_object_sensor is not None:
@@ -195,7 +205,6 @@ def main() -> None:
     parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache (shared with live.py)")
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
     parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
-    parser.add_argument("--method", default="cti-icp-5", help="localization method when (re-)localizing")
     parser.add_argument("--sequences", type=int, default=10)
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--seed", type=int, default=2026, help="slip test set seed (not tuned on)")
@@ -226,11 +235,11 @@ def main() -> None:
     starts, start_confidence = belief_starts(work, args.object, data, tactile_map, model, encoder, args.belief_grasps,
                                              args.seed + 1)
     print(f"belief starts: {len(starts)} of {args.sequences} sequences have an episode at their placement")
-    tracker = Tracker([tactile_map], model, encoder, method=args.method,
-                      tracking=TrackingSettings(search_mm=args.search_mm))
-    localizer = Localizer([tactile_map], model, encoder, method=args.method)
-    print(f"compiled: tracker {tracker.compile_s:.1f} s ({tracker.kernels} kernels, both branches), "
-          f"localizer {localizer.compile_s:.1f} s ({localizer.kernels} kernels)")
+    # A slip sequence's first frame is its grasp: it updates the belief at once (no settling).
+    tracker = Tracker([tactile_map], model, encoder, tracking=TrackingSettings(search_mm=args.search_mm),
+                      live=LiveSettings(settle_frames=1))
+    localizer = Localizer([tactile_map], model, encoder)
+    print(f"compiled: tracker {tracker.compile_s:.1f} s (its localizer included), localizer {localizer.compile_s:.1f} s")
 
     results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": [],
                       "sequence_index": []} for mode in MODES}
@@ -241,10 +250,11 @@ def main() -> None:
             rows = np.flatnonzero(data["sequence"] == sequence)
             rows = rows[np.argsort(data["frame"][rows])]
             images, openings, truth = data["image"][rows], data["opening_mm"][rows], data["T_object_sensor"][rows]
+            grippers = data["T_world_gripper"][rows].astype(np.float32)
             contact_px.append(data["contact_px"][rows])
             for mode in MODES:
                 if mode == "re-localizing every frame":
-                    estimator = localizer
+                    estimator = EveryFrame(localizer)
                 else:
                     tracker.reset()
                     if mode == "tracking from the true start":
@@ -254,7 +264,7 @@ def main() -> None:
                             continue
                         tracker.start(args.object, jaxlie.SE3(jnp.asarray(starts[int(sequence)], jnp.float32)))
                     estimator = tracker
-                poses, latency, tracked, relocalized = run_sequence(estimator, images, openings)
+                poses, latency, tracked, relocalized = run_sequence(estimator, images, openings, grippers)
                 position, drift = errors(poses, truth, symmetries)
                 for name, value in (("position_mm", position), ("drift_mm", drift), ("latency_s", latency),
                                     ("tracked", tracked), ("relocalized", relocalized), ("sequence_index", index)):
@@ -318,14 +328,13 @@ def main() -> None:
         print(f"figure: {args.figure}")
     if args.json:
         write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": args.encoder,
-                               "method": args.method, "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
+                               "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
                                "seed": args.seed, "recompilations": counter.count,
                                "errors_up_to_symmetries": len(symmetries[1]),
                                "small_touch_fraction": float(all_small.mean()),
                                "belief_grasps": args.belief_grasps,
                                "belief_start_p_within_2mm": start_confidence,
                                "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},
-                               "kernels": {"tracker": tracker.kernels, "localizer": localizer.kernels},
                                "modes": summary})
 
 

@@ -4,16 +4,19 @@ One run, one process, the same touches (new grasps at yaw 10 deg, not in the map
 ``benchmarks/live.py``):
 
 - **tactojax**, each stage jitted on its own (heightmap: ``predict`` + ``observed_contact``;
-  features: the encoder; identification + localization: retrieval and CTI-ICP-N), then the
-  deployed path: the live ``Localizer``, one compiled program per touch. Per stage: the
-  steady-state median, the kernels the compiled program launches (``kernel_count``) and its
-  compile time. Recompilations in the loop are counted (must be 0).
+  features: the encoder; the pose belief of the touch, :func:`~tactojax.localize.update_belief`;
+  and the paper's identification + CTI-ICP-N, as the peer runs it), then the deployed path: the
+  live ``Localizer`` fusing each touch as a grasp (``fuse``: frame and gripper pose in, belief
+  out), and a frame that updates nothing (a grasp still settling). Per stage: the steady-state
+  median, the kernels the compiled program launches (``kernel_count``) and its compile time.
+  Recompilations in the loop are counted (must be 0).
 - **the peer** (``benchmarks/_peer.py``): the same two networks exported to ONNX and run by ONNX
   Runtime, NumPy/SciPy/OpenCV around them, Open3D's point-to-plane ICP.
 - **the floor**: the networks' floating-point operations (XLA's cost analysis of the compiled
   stages) over what this machine's CPU sustains on a large matrix product.
 
-Accuracy: the median position error of both pipelines against the simulator's truth.
+Accuracy: the median position error of both pipelines against the simulator's truth (the
+Localizer's belief from one touch, the peer's CTI-ICP-N).
 
     python benchmarks/whole_touch.py --json whole_touch.json
 
@@ -37,8 +40,10 @@ from tactojax._compilation import CompilationCounter, kernel_count
 from tactojax.features import apply_encoder, encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.io import DEFAULT_ENCODER, open_dataset, read_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import IcpSettings, LocalizationMap, Localizer, MapLibrary, Query, identify, localize
-from tactojax.localize._methods import MAX_OPENING_DIFFERENCE_MM, POINTS_PER_QUERY
+from tactojax.localize import (BeliefSettings, IcpSettings, LocalizationMap, Localizer, MapLibrary, Touch,
+                               empty_belief, identify, localize_baseline, update_belief)
+from tactojax.localize._points import POINTS_PER_TOUCH
+from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.shape import coordinate_bias, predict
 from tactojax.simulate import MappingProtocol
@@ -128,10 +133,17 @@ def main() -> None:
     def features_stage(image):
         return apply_encoder(encoder, (image.astype(jnp.float32) / 255.0)[None])[0]
 
+    settings = BeliefSettings()
+
+    def belief_stage(heightmap, mask, feature, opening):
+        touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
+        belief = update_belief(view, empty_belief(view, settings), touch, jaxlie.SE3.identity(), settings)
+        return belief.best.wxyz_xyz, belief.probability_within()
+
     def localize_stage(heightmap, mask, feature, opening):
         chosen, _ = identify(library, feature, opening)
-        query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
-        return chosen, localize(jax.random.key(0), view, query, method=method)
+        touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
+        return chosen, localize_baseline(jax.random.key(0), view, touch, method=method)
 
     frames = [(jnp.asarray(image),) for image in images[:20]]
     stages, compiled = {}, {}
@@ -141,20 +153,27 @@ def main() -> None:
                         "compile_s": compile_s, "gflop": gflop}
     queries = [(*compiled["heightmap"](*frame), compiled["features"](*frame), jnp.float32(opening))
                for frame, opening in zip(frames, openings)]
-    program, compile_s, kernels, gflop = compiled_stage(localize_stage, *queries[0])
-    stages["identify + CTI-ICP"] = {"median_ms": median_ms(program, queries, args.repeats), "kernels": kernels,
-                                    "compile_s": compile_s, "gflop": gflop}
+    for name, function in (("belief (one touch)", belief_stage), (f"identify + {method.upper()}", localize_stage)):
+        program, compile_s, kernels, gflop = compiled_stage(function, *queries[0])
+        stages[name] = {"median_ms": median_ms(program, queries, args.repeats), "kernels": kernels,
+                        "compile_s": compile_s, "gflop": gflop}
 
-    # The deployed path: the live Localizer, one program per touch.
-    localizer = Localizer([tactile_map], model, encoder, method=method)
-    estimates, latencies = [], []
-    localizer(images[0], float(openings[0]))
+    # The deployed path: the live Localizer fusing every touch as a grasp of its own (frame and
+    # gripper pose in, the belief out), and a frame that updates nothing (a grasp settling).
+    localizer = Localizer([tactile_map], model, encoder, settings=settings)
+    grippers = touches["T_world_gripper"][order].astype(np.float32)
+    estimates, latencies, frame_latencies = [], [], []
+    localizer.fuse(images[0], float(openings[0]), jaxlie.SE3(grippers[0]))
     with CompilationCounter() as compiles:
-        for image, opening in tqdm(list(zip(images, openings)), desc="Localizer", unit="touch"):
-            estimate = localizer(image, float(opening))
+        for image, opening, gripper in tqdm(list(zip(images, openings, grippers)), desc="Localizer", unit="touch"):
+            localizer.reset()
+            frame_latencies.append(localizer(image, float(opening), jaxlie.SE3(gripper)).latency_s)
+            localizer.reset()
+            estimate = localizer.fuse(image, float(opening), jaxlie.SE3(gripper))
             estimates.append(estimate)
             latencies.append(estimate.latency_s)
-    whole = {"median_ms": 1e3 * float(np.median(latencies)), "kernels": localizer.kernels,
+    whole = {"median_ms": 1e3 * float(np.median(latencies)), "kernels": None,
+             "frame_without_update_ms": 1e3 * float(np.median(frame_latencies)),
              "compile_s": localizer.compile_s, "recompilations": compiles.count,
              "median_position_error_mm": _median_error(
                  [None if e.T_object_sensor is None else np.asarray(e.T_object_sensor.translation())
@@ -167,7 +186,7 @@ def main() -> None:
     peer = None
     if not args.no_peer:
         settings = IcpSettings()
-        pipeline = PeerPipeline(model, encoder, tactile_map, n=args.n, points=POINTS_PER_QUERY,
+        pipeline = PeerPipeline(model, encoder, tactile_map, n=args.n, points=POINTS_PER_TOUCH,
                                 max_distance_mm=settings.max_distance_mm, iterations=settings.iterations,
                                 max_opening_difference_mm=MAX_OPENING_DIFFERENCE_MM, threads=args.threads)
         pipeline(images[0], float(openings[0]))  # ONNX Runtime's first run allocates
@@ -183,13 +202,14 @@ def main() -> None:
 
     rows = [[name, f"{s['median_ms']:.2f}", s["kernels"], f"{s['compile_s']:.1f}", f"{1e3 * s['gflop']:.0f}"]
             for name, s in stages.items()]
-    rows.append(["whole touch (Localizer)", f"{whole['median_ms']:.2f}", whole["kernels"],
+    rows.append(["whole touch (Localizer.fuse: the belief)", f"{whole['median_ms']:.2f}", "-",
                  f"{whole['compile_s']:.1f}", "-"])
+    rows.append(["a frame that updates nothing (Localizer)", f"{whole['frame_without_update_ms']:.2f}", "-", "-", "-"])
     print(format_table(["tactojax stage", "median ms", "kernels", "compile s", "MFLOP"], rows))
     if peer is not None:
         print(format_table(["peer stage (ONNX Runtime, SciPy, OpenCV, Open3D)", "median ms"],
                            [[k, f"{v:.2f}"] for k, v in peer.items() if k != "median_position_error_mm"]))
-    print(format_table(["whole touch", "tactojax", "peer"], [
+    print(format_table(["whole touch", "tactojax (belief)", f"peer ({method.upper()})"], [
         ["median latency (ms)", f"{whole['median_ms']:.2f}", "-" if peer is None else f"{peer['median_ms']:.2f}"],
         ["median position error (mm)", f"{whole['median_position_error_mm']:.2f}",
          "-" if peer is None else f"{peer['median_position_error_mm']:.2f}"],

@@ -1,5 +1,9 @@
 """The notebooks in notebooks/: each executes without error in its small (CI) configuration.
 
+Executing them is slow (compilation of every stage they show): those tests are marked ``slow``
+and run with ``pytest -m slow``; the check that every notebook is saved clean and uses only the
+public API always runs.
+
 Every ``notebooks/*.ipynb`` runs top to bottom in a fresh Jupyter kernel with
 ``TACTOJAX_NOTEBOOK_SMALL=1``, in a temporary working directory. The kernel is pinned to the
 interpreter running pytest (a kernelspec written for ``sys.executable`` first on
@@ -52,6 +56,7 @@ def pinned_kernel(tmp_path, monkeypatch):
     return KERNEL_NAME
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_executes_small(path, tmp_path, monkeypatch, pinned_kernel):
     monkeypatch.setenv("TACTOJAX_NOTEBOOK_SMALL", "1")

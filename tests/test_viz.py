@@ -63,3 +63,33 @@ def test_map_figure_shows_a_thin_object_at_true_scale_along_its_thinnest_axis(tm
     assert len(oblique.get_xticks()) >= 3
     path = tactile_map_figure(points, tmp_path / "map.png", title="thin")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_belief_figure_shows_each_objects_hypotheses_and_the_calibration_curves(tmp_path):
+    from tactojax.viz import belief_figure
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-50, -5, -20], [50, 5, 20], (500, 3))  # thinnest along y: seen from y
+    after = {k: {"positions": np.array([[1.0, 0.0, 2.0], [30.0, 0.0, -5.0], [0.0, 0.0, 0.0]]),
+                 "probabilities": np.array([0.7, 0.3, 0.0]), "error_mm": 0.5 * k, "within": 0.7}
+             for k in (1, 3)}
+    examples = {"a": {"points": points, "true": np.array([1.0, 0.0, 2.0]), "after": after},
+                "b": {"points": points, "true": np.array([0.0, 0.0, 0.0]), "after": after}}
+    curves = {"a": {"grasps": [1, 2, 3], "observed": [0.5, 0.75, 1.0], "predicted": [0.4, 0.8, 0.9]},
+              "b": {"grasps": [1, 2, 3], "observed": [0.25, 0.5, 0.5], "predicted": [0.3, 0.6, 0.7]}}
+    figure = belief_figure(examples, curves)
+    titles = [axis.get_title() for axis in figure.axes]
+    assert titles[:4] == ["a, after 1 grasp\nP(within 2 mm) 0.70, error 0.5 mm",
+                          "a, after 3 grasps\nP(within 2 mm) 0.70, error 1.5 mm",
+                          "b, after 1 grasp\nP(within 2 mm) 0.70, error 0.5 mm",
+                          "b, after 3 grasps\nP(within 2 mm) 0.70, error 1.5 mm"]
+    panel = figure.axes[0]
+    assert (panel.get_xlabel(), panel.get_ylabel()) == ("x (mm)", "z (mm)")
+    hypotheses = panel.collections[1]  # map points, then the hypotheses with any probability, then the truth
+    np.testing.assert_allclose(hypotheses.get_offsets(), [[30.0, -5.0], [1.0, 2.0]])  # the most probable on top
+    curve_axis = figure.axes[-1]
+    assert curve_axis.get_xlabel() == "grasps fused (both fingers)"
+    assert [line.get_label() for line in curve_axis.lines] == ["a: observed", "a: predicted", "b: observed",
+                                                               "b: predicted"]
+    np.testing.assert_allclose(curve_axis.lines[1].get_xydata(), [[1, 0.4], [2, 0.8], [3, 0.9]])
+    assert save_png(figure, tmp_path / "belief.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._map import DEFAULT_MODEL
-from tactojax.cli._maps import add_encoder_argument, object_symmetries
+from tactojax.cli._maps import add_encoder_argument
 from tactojax.cli._table import format_table, write_json
 
 
@@ -46,8 +46,7 @@ def _episodes_of(object_id: str, directories, model, encoder):
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder
     from tactojax.io import DEFAULT_ENCODER, resolve_shape_model, save_tactile_map, tactile_map_metadata
-    from tactojax.localize import (LocalizationMap, build_map_surface, calibration_to_json, fit_calibration,
-                                   record_beliefs)
+    from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration, record_beliefs
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     if args.rounds < 1:
@@ -59,12 +58,11 @@ def run(args) -> int:
         if args.fingers > recorded:
             raise ValueError(f"--fingers {args.fingers}: the calibration grasps of {tactile_map.object_id} "
                              f"record {recorded} finger per grasp (simulate them with --fingers 2)")
-        view, surface = LocalizationMap.from_tactile_map(tactile_map), build_map_surface(tactile_map)
-        calibration = None
+        view = LocalizationMap.from_tactile_map(tactile_map)  # the first round runs uncalibrated
         for _ in range(args.rounds):
-            records = record_beliefs(view, surface, episodes, fingers=args.fingers, calibration=calibration,
-                                     symmetries=object_symmetries(tactile_map.object_id), progress=True)
+            records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
             calibration, report = fit_calibration(records)
+            view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
         report.update(encoder=args.encoder or DEFAULT_ENCODER, fingers=args.fingers,
                       episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})

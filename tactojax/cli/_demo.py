@@ -1,13 +1,17 @@
-"""``tactojax demo``: the whole paper, end to end, on built-in objects in a few minutes.
+"""``tactojax demo``: the whole paper end to end on built-in objects, then the pose belief, in a few minutes.
 
 1. Local shape (section IV): simulated calibration touches of the five calibration shapes; the
    bundled ``fast`` model recovers their heightmaps from the images (Table I's measure).
 2. Tactile maps (section V): the mapping protocol on three household objects; every imprint's
    heightmap is *predicted* by the bundled model and placed by the kinematics.
-3. Localization (section VI): leave-one-out RANDOM / CTI / CTI-ICP-1 / CTI-ICP-5 with the
-   ImageNet EfficientNet-Lite0 features (Table III), with error histograms.
+3. Localization (section VI): leave-one-out RANDOM / CTI / CTI-ICP-5 with the ImageNet
+   EfficientNet-Lite0 features (Table III; ``--methods`` adds CTI-ICP-1), with error histograms.
 4. Identification (section VII): each held-out touch is assigned to the object whose map holds
    the most similar imprint (confusion matrix).
+5. The pose belief (the library's answer, beyond the paper) on *new* grasps, off the mapping
+   grid: episodes of grasps with both fingers while the object stays put, fused grasp by grasp
+   by the kinematics; its error and its predicted P(within 2 mm) after 1 and 3 grasps, and a
+   figure of where it puts the sensor.
 
 Tables are printed, figures saved as PNG and everything can be written as JSON.
 """
@@ -19,13 +23,14 @@ import time
 from pathlib import Path
 
 import jax
+from tqdm.auto import tqdm
 
 from tactojax.cli._map import DEFAULT_MODEL
 from tactojax.cli._table import format_table, write_json
 from tactojax.io import DEFAULT_ENCODER
 
 DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")
-DEMO_METHODS = ("random", "cti", "cti-icp-1", "cti-icp-5")
+DEMO_METHODS = ("random", "cti", "cti-icp-5")
 
 
 def add_parser(commands) -> None:
@@ -39,7 +44,12 @@ def add_parser(commands) -> None:
     parser.add_argument("--scale", type=float, default=0.5, help="sensor resolution factor (default 0.5)")
     parser.add_argument("--calibration-touches", type=int, default=20, help="per calibration shape")
     parser.add_argument("--queries", type=int, default=60, help="held-out touches per object for localization")
-    parser.add_argument("--methods", default=",".join(DEMO_METHODS))
+    parser.add_argument("--methods", default=",".join(DEMO_METHODS),
+                        help="leave-one-out methods: the paper's baselines (step 3)")
+    parser.add_argument("--episodes", type=int, default=4,
+                        help="new-grasps episodes per object for the belief (step 5; default 4)")
+    parser.add_argument("--grasps", type=int, default=3,
+                        help="grasps per episode, both fingers each (step 5; default 3)")
     parser.add_argument("--model", default=DEFAULT_MODEL, help="shape model")
     parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder")
     parser.add_argument("--json", metavar="PATH", help="also write every table as JSON")
@@ -59,12 +69,23 @@ def run(args) -> int:
     if abs(spec.mm_per_px - model.mm_per_px) > 1e-6:
         raise ValueError(f"the shape model is for {model.mm_per_px} mm/px, the demo sensor has {spec.mm_per_px}: "
                          "pass --scale to match it")
+    steps = {}
+    steps["local_shape"] = time.perf_counter()
     report = {"local_shape": _local_shape(args, spec, model, out)}
+    steps["maps"] = time.perf_counter()
     maps, report["maps"] = _maps(args, spec, model, encoder, out)
+    steps["localization"] = time.perf_counter()
     report["localization"] = _localization(args, maps, out)
+    steps["identification"] = time.perf_counter()
     report["identification"] = _identification(maps, out)
+    steps["belief"] = time.perf_counter()
+    report["belief"] = _belief(args, spec, model, encoder, maps, out)
     report["seconds"] = time.perf_counter() - start
-    print(f"\ndemo finished in {report['seconds']:.0f} s; figures and maps in {out}/")
+    ends = [*list(steps.values())[1:], start + report["seconds"]]
+    report["step_seconds"] = {name: end - begin for (name, begin), end in zip(steps.items(), ends)}
+    print(f"\ndemo finished in {report['seconds']:.0f} s ("
+          + ", ".join(f"{name.replace('_', ' ')} {seconds:.0f} s" for name, seconds in report["step_seconds"].items())
+          + f"); figures and maps in {out}/")
     if args.json:
         write_json(args.json, report)
     return 0
@@ -83,7 +104,7 @@ def _local_shape(args, spec, model, out: Path) -> dict:
 
     path = out / "datasets" / "calibration"
     shutil.rmtree(path, ignore_errors=True)
-    print(f"1/4 local shape: simulating {args.calibration_touches} touches of each calibration shape")
+    print(f"1/5 local shape: simulating {args.calibration_touches} touches of each calibration shape")
     for index, name in enumerate(CALIBRATION_SHAPES):
         simulate_to_dataset(path, jax.random.key(args.seed + index), spec, get_object(name),
                             CalibrationProtocol(touches=args.calibration_touches), progress=False)
@@ -111,7 +132,7 @@ def _maps(args, spec, model, encoder, out: Path):
     protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg))
     maps, rows, records = [], [], {}
     (out / "maps").mkdir(parents=True, exist_ok=True)
-    print(f"\n2/4 tactile maps: {protocol.grid_mm:g} mm grid, yaws {list(protocol.yaws_deg)} deg")
+    print(f"\n2/5 tactile maps: {protocol.grid_mm:g} mm grid, yaws {list(protocol.yaws_deg)} deg")
     for index, name in enumerate(args.objects):
         try:
             obj = get_object(name)
@@ -148,11 +169,12 @@ def _localization(args, maps, out: Path) -> dict:
     import numpy as np
 
     from tactojax.cli._maps import histogram_panel, object_symmetries
-    from tactojax.localize import evaluate_localization, parse_method
+    from tactojax.localize import evaluate_localization
+    from tactojax.localize._baselines import parse_method
     from tactojax.viz import localization_histogram_figure, save_png
 
     methods = [parse_method(m).name for m in args.methods.split(",") if m.strip()]
-    print(f"\n3/4 localization: leave-one-out, up to {args.queries} held-out touches per object")
+    print(f"\n3/5 localization: leave-one-out, up to {args.queries} held-out touches per object")
     rows, histograms, payload = [], {}, {}
     for tactile_map in maps:
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
@@ -178,7 +200,7 @@ def _identification(maps, out: Path) -> dict:
     from tactojax.localize import evaluate_identification
     from tactojax.viz import confusion_figure, save_png
 
-    print("\n4/4 identification: every touch held out of its own map")
+    print("\n4/5 identification: every touch held out of its own map")
     result = evaluate_identification(maps)
     confusion, names = result.confusion(), list(result.object_ids)
     print(f"top-1 {100 * result.accuracy():.1f} % of {len(result.true)} touches")
@@ -186,3 +208,89 @@ def _identification(maps, out: Path) -> dict:
     figure = save_png(confusion_figure(confusion, names), out / "demo_identification.png")
     print(f"figure: {figure}")
     return {**result.summary(), "figure": str(figure)}
+
+
+def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
+    """Beyond the paper: the pose belief on new grasps, fused over the grasps of each episode."""
+    import numpy as np
+
+    from tactojax.io import load_test_episodes, simulate_to_dataset
+    from tactojax.localize import LocalizationMap, Touch, localize
+    from tactojax.objects import get_object
+    from tactojax.simulate import GraspsProtocol
+    from tactojax.viz import belief_figure, save_png
+
+    if args.episodes < 1 or args.grasps < 1:
+        raise ValueError("--episodes and --grasps must be at least 1")
+    protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps, fingers=2,
+                              turns_deg=(0.0, 180.0))
+    shown = sorted({1, args.grasps})
+    print(f"\n5/5 the pose belief on new grasps: {args.episodes} episodes of {args.grasps} grasps per object, off "
+          "the mapping grid, both fingers; each grasp fused by the kinematics (uncalibrated: `tactojax "
+          "calibrate-belief` fits its scales on grasps of the object's own)")
+    rows, payload, examples, curves = [], {}, {}, {}
+    for index, tactile_map in enumerate(maps):
+        name = tactile_map.object_id
+        dataset = out / "datasets" / f"{name}-new-grasps"
+        shutil.rmtree(dataset, ignore_errors=True)
+        simulate_to_dataset(dataset, jax.random.key(args.seed + 200 + index), spec, get_object(name), protocol,
+                            progress=False)
+        episodes, _ = load_test_episodes(dataset, name, model, encoder, progress=False)
+        view = LocalizationMap.from_tactile_map(tactile_map)
+        count = int(episodes.openings.shape[0])
+        error, within = np.full((count, args.grasps), np.inf), np.zeros((count, args.grasps))
+        snapshots = [{} for _ in range(count)]  # per episode: {grasps: (positions, probabilities)}
+        for e in tqdm(range(count), desc=f"{name} episodes", leave=False):
+            episode = jax.tree.map(lambda x: x[e], episodes)
+            belief = None
+            for g in range(args.grasps):
+                if belief is None and not np.any(np.asarray(episode.masks[g])):
+                    continue  # nothing felt yet: no estimate (an infinite error, P 0)
+                touches = [Touch(heightmap=episode.heightmaps[g, f], mask=episode.masks[g, f],
+                                 feature=episode.features[g, f], opening=episode.openings[g]) for f in range(2)]
+                # The sensor poses of the kinematics, here in the object's frame: only how they
+                # relate the touches reaches the belief.
+                belief = localize(view, touches, jax.tree.map(lambda x: x[g], episode.T_object_sensor),
+                                  belief=belief)
+                error[e, g], within[e, g], positions = jax.device_get(_score_belief(belief, episode, g))
+                if g + 1 in shown:
+                    snapshots[e][g + 1] = (positions, np.asarray(belief.probabilities))
+        # The figure's episode: the typical one (the median error after the last grasp).
+        typical = int(np.argsort(error[:, -1])[(count - 1) // 2])
+        examples[name] = {"points": np.asarray(tactile_map.points_object)[np.asarray(tactile_map.valid)],
+                          "true": np.asarray(episodes.T_object_sensor.translation()[typical, 0, 0]),
+                          "after": {k: {"positions": positions, "probabilities": probabilities,
+                                        "error_mm": error[typical, k - 1], "within": within[typical, k - 1]}
+                                    for k, (positions, probabilities) in snapshots[typical].items()}}
+        payload[name] = {"episodes": count, "grasps": list(range(1, args.grasps + 1)),
+                         "median_error_mm": np.median(error, axis=0).tolist(),
+                         "within_2mm": np.mean(error <= 2.0, axis=0).tolist(),
+                         "mean_probability_within_2mm": np.mean(within, axis=0).tolist()}
+        curves[name] = {"grasps": payload[name]["grasps"], "observed": payload[name]["within_2mm"],
+                        "predicted": payload[name]["mean_probability_within_2mm"]}
+        for k in shown:
+            rows.append([name, k, 2 * k, count, float(np.median(error[:, k - 1])),
+                         f"{100 * np.mean(error[:, k - 1] <= 2.0):.0f} %", float(np.mean(within[:, k - 1]))])
+    print("error: RMSE of the fused touches' contact clouds at the belief's best pose, mm (up to symmetry)")
+    print(format_table(["object", "grasps", "touches", "episodes", "median error (mm)", "within 2 mm",
+                        "mean P(within 2 mm)"], rows))
+    examples = {n: example for n, example in examples.items() if len(example["after"]) == len(shown)}
+    figure = save_png(belief_figure(examples, curves), out / "demo_belief.png")
+    print(f"figure: {figure}")
+    return {"objects": payload, "figure": str(figure)}
+
+
+@jax.jit
+def _score_belief(belief, episode, g):
+    """After grasp ``g`` of an episode: the error over the fused touches (the paper's RMSE, up to
+    the object's symmetry), the belief's P(within 2 mm) and its hypotheses' first-sensor positions."""
+    import jax.numpy as jnp
+
+    from tactojax.localize._new_grasps import _errors
+
+    grasps, fingers = episode.openings.shape[0], 2
+    T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
+    fused = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
+    _, symmetric, _, _ = _errors(T_true, belief.sensor_pose(T_true), episode.cloud_mean[:, :fingers].reshape(-1, 3),
+                                 episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), fused, belief.symmetries)
+    return symmetric, belief.probability_within(2.0), belief.T_object_reference.translation()

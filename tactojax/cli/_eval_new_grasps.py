@@ -11,8 +11,9 @@ def run_new_grasps(args) -> int:
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
     from tactojax.io import load_test_episodes, resolve_shape_model
-    from tactojax.localize import (BeliefSettings, LocalizationMap, build_map_surface, calibration,
-                                   evaluate_new_grasps, parse_method)
+    from tactojax.localize import LocalizationMap, evaluate_new_grasps
+    from tactojax.localize._baselines import parse_method
+    from tactojax.localize._new_grasps import calibration
     from tactojax.viz import new_grasps_figure, save_png
 
     methods = [parse_method(m).name for m in (args.methods or DEFAULT_TEST_METHODS).split(",") if m.strip()]
@@ -32,11 +33,9 @@ def run_new_grasps(args) -> int:
             episodes = jax.tree.map(lambda x: x[:, :args.touches], episodes)
         symmetries = object_symmetries(tactile_map.object_id)
         symmetric = is_symmetric(symmetries)
-        view = LocalizationMap.from_tactile_map(tactile_map)
-        surface = build_map_surface(tactile_map) if "belief" in methods else None
-        results = evaluate_new_grasps(view, surface, episodes, methods, fingers=args.fingers, symmetries=symmetries,
-                                      calibration=stored_calibration(path, args.encoder), settings=BeliefSettings(),
-                                      progress=True)
+        fit = stored_calibration(path, args.encoder) if "belief" in methods else None
+        view = LocalizationMap.from_tactile_map(tactile_map, calibration=fit, symmetries=symmetries)
+        results = evaluate_new_grasps(view, episodes, methods, fingers=args.fingers, progress=True)
         summaries = [r.summary(symmetric=symmetric) for r in results]
         for r, s in zip(results, summaries):
             gap = s.get("calibration", {}).get("max_gap")
@@ -58,6 +57,7 @@ def run_new_grasps(args) -> int:
                                                               error <= 2.0)
         payload["objects"][tactile_map.object_id] = {
             "imprints": len(tactile_map), "episodes": int(episodes.openings.shape[0]), "symmetric": symmetric,
+            "calibrated": fit is not None,
             "results": summaries, "calibration": calibrations.get(tactile_map.object_id)}
     print(format_table(["object", "method", "fingers", "grasps", "count", "median RMSE (mm)", "symmetric (mm)",
                         "<= 1 mm", "<= 2 mm", "<= 5 mm", "translation (mm)", "rotation (deg)",

@@ -55,17 +55,15 @@ def run_new_grasps(args) -> int:
     """``identify MAP... --test DIR...``: P(object) from every map's belief over each episode."""
     import numpy as np
 
-    from tactojax.cli._maps import maps_and_query_encoder, object_symmetries, stored_calibration
+    from tactojax.cli._maps import localization_views, maps_and_query_encoder
     from tactojax.io import load_test_episodes, read_test_grasps, resolve_shape_model
-    from tactojax.localize import (LocalizationMap, build_map_surface, calibration_to_json, identify_episodes,
-                                   shared_calibration)
+    from tactojax.localize import calibration_to_json, identify_episodes
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     names = [m.object_id for m in maps]
     model = resolve_shape_model(args.model)
-    catalog = [(LocalizationMap.from_tactile_map(m), build_map_surface(m), object_symmetries(m.object_id))
-               for m in maps]
-    calibration = shared_calibration([stored_calibration(path, args.encoder) for path in args.maps])
+    catalog, _ = localization_views(args.maps, maps, args.encoder, shared=True)
+    calibration = catalog[0].calibration  # the maps' median: one calibration, so that evidences compare
     correct, probability = {}, {}  # object -> (E, G) arrays
     for directory in args.test:
         for name in sorted(set(read_test_grasps(directory, ["opening_mm"])["object_id"].tolist())):

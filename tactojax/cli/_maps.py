@@ -71,6 +71,23 @@ def stored_calibration(path, encoder_name: str | None):
     return calibration_from_json(fit)
 
 
+def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = True):
+    """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration its file
+    stores (:func:`stored_calibration`); with ``shared`` and several maps, all under their median
+    (:func:`~tactojax.localize.shared_calibration`), so that their evidences compare (P(object)).
+
+    Returns:
+        (views, calibrated): the views, and whether any map holds a calibration.
+    """
+    from tactojax.localize import LocalizationMap, shared_calibration
+
+    calibrations = [stored_calibration(path, encoder_name) for path in paths]
+    calibrated = any(c is not None for c in calibrations)
+    if shared and len(maps) > 1:
+        calibrations = [shared_calibration(calibrations)] * len(maps)
+    return [LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations)], calibrated
+
+
 def object_symmetries(object_id: str):
     """The catalog object's symmetry group (SE3 batch), or None for objects outside the catalog."""
     from tactojax.objects import CATALOG, get_object

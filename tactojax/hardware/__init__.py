@@ -36,6 +36,7 @@ from tactojax.hardware._camera import validate_corners as validate_corners
 from tactojax.hardware._camera import write_video as write_video
 from tactojax.hardware._live import LatestFrame as LatestFrame
 from tactojax.hardware._live import LiveStatistics as LiveStatistics
+from tactojax.hardware._live import PoseLookup as PoseLookup
 from tactojax.hardware._live import live_estimates as live_estimates
 from tactojax.hardware._pose_source import PoseLog as PoseLog
 from tactojax.hardware._pose_source import PoseSample as PoseSample

@@ -1,12 +1,14 @@
-"""The live localization loop: camera frames and gripper openings in, estimates out.
+"""The live localization loop: camera frames, gripper openings and poses in, estimates out.
 
 :func:`live_estimates` runs a compiled :class:`~tactojax.localize.Localizer` (or a
 :class:`~tactojax.localize.Tracker`, which follows the pose between frames) on frames as they
-come. With ``latest_only`` (live cameras), a background thread keeps reading the camera and the
-loop always takes the newest frame, so a slow step costs skipped frames instead of a growing
-backlog (latency stays one step); without it (video files, benchmarks) every frame is
-processed in order. :class:`LiveStatistics` summarises a run: sustained rate, latency
-percentiles, skipped frames and recompilations.
+come, each with the gripper's opening and, given a pose source (:class:`PoseLookup`), its pose
+at the frame's time: the kinematics that let the belief fuse successive grasps of an object
+that stays put. With ``latest_only`` (live cameras), a background thread keeps reading the
+camera and the loop always takes the newest frame, so a slow step costs skipped frames instead
+of a growing backlog (latency stays one step); without it (video files, benchmarks) every frame
+is processed in order. :class:`LiveStatistics` summarises a run: sustained rate, latency
+percentiles, skipped frames, stale poses and recompilations.
 """
 
 from __future__ import annotations
@@ -16,9 +18,11 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
+import jaxlie
 import numpy as np
 
 from tactojax.hardware._camera import Camera, EndOfStream, Frame
+from tactojax.hardware._pose_source import PoseSource, StaleDataError
 from tactojax.localize import LiveEstimate, Localizer, Tracker
 
 
@@ -70,11 +74,47 @@ class LatestFrame:
         self._thread.join(timeout=2.0)
 
 
+class PoseLookup:
+    """The gripper pose at each frame's time, from a pose source (a robot's feed or a log).
+
+    Called with a frame, it returns ``T_world_gripper`` at the frame's timestamp (the source's
+    nearest sample within ``max_skew_s``, interpolated), or None when the source has none that
+    close (the frame is then localized without kinematics, and counted in ``stale``).
+
+    Args:
+        poses: the source (:class:`~tactojax.hardware.PoseLog`, :class:`~tactojax.hardware.UdpPoseReceiver`),
+            on the camera's clock.
+        max_skew_s: largest time between a frame and the pose used for it, s.
+    """
+
+    def __init__(self, poses: PoseSource, *, max_skew_s: float = 0.05):
+        if not max_skew_s > 0:
+            raise ValueError(f"max_skew_s must be positive, got {max_skew_s}")
+        self.poses, self.max_skew_s = poses, max_skew_s
+        self.stale = 0
+        """Frames for which the source had no pose within ``max_skew_s``."""
+        self.last_error = ""
+        """Why the latest stale lookup failed."""
+        self.last: jaxlie.SE3 | None = None
+        """The pose handed out for the latest frame (None when it was stale)."""
+
+    def __call__(self, frame: Frame) -> jaxlie.SE3 | None:
+        try:
+            sample = self.poses.pose_at(frame.timestamp_s, max_skew_s=self.max_skew_s)
+        except StaleDataError as error:
+            self.stale += 1
+            self.last_error, self.last = str(error), None
+            return None
+        self.last = jaxlie.SE3(np.asarray(sample.T_world_gripper.wxyz_xyz, np.float32))
+        return self.last
+
+
 def live_estimates(
     camera: Camera,
     localizer: Localizer | Tracker,
     opening_mm: float | Callable[[], float],
     *,
+    gripper_pose: Callable[[Frame], jaxlie.SE3 | None] | None = None,
     max_frames: int | None = None,
     latest_only: bool = False,
 ) -> Iterator[tuple[Frame, LiveEstimate]]:
@@ -85,6 +125,9 @@ def live_estimates(
         localizer: the compiled localizer, or a tracker.
         opening_mm: the gripper opening, mm: a number, or a function read once per frame
             (e.g. ``gripper.opening_mm``).
+        gripper_pose: the gripper pose at a frame (e.g. a :class:`PoseLookup`), passed to the
+            localizer with it so that successive grasps fuse into one belief; None: no poses
+            (each settled grasp then starts a new belief).
         max_frames: stop after this many estimates (None: until the stream ends).
         latest_only: read the camera in a background thread and always take the newest frame.
 
@@ -100,7 +143,8 @@ def live_estimates(
                 frame = latest.get() if latest is not None else camera.read()
             except EndOfStream:
                 return
-            yield frame, localizer(frame.image, read_opening())
+            T_world_gripper = gripper_pose(frame) if gripper_pose is not None else None
+            yield frame, localizer(frame.image, read_opening(), T_world_gripper)
             count += 1
     finally:
         if latest is not None:
@@ -112,7 +156,8 @@ class LiveStatistics:
     """Rate and latency of a live run (wall-clock, this process).
 
     Skipped frames are those the loop did not process (``latest_only`` took a newer one);
-    dropped frames are those the camera itself lost (``Frame.dropped_before``).
+    dropped frames are those the camera itself lost (``Frame.dropped_before``); stale poses
+    are frames localized without a gripper pose (:attr:`PoseLookup.stale`, set by the caller).
     """
 
     latencies_s: list[float] = field(default_factory=list)
@@ -122,6 +167,7 @@ class LiveStatistics:
     skipped_frames: int = 0
     dropped_frames: int = 0
     recompilations: int = 0
+    stale_poses: int = 0
 
     _previous_index: int | None = None
 
@@ -135,7 +181,8 @@ class LiveStatistics:
         self._previous_index = frame.index
 
     def summary(self) -> dict:
-        """Frames, sustained rate (Hz), latency percentiles (ms), skipped/dropped, recompilations."""
+        """Frames, sustained rate (Hz), latency percentiles (ms), skipped/dropped, stale poses,
+        recompilations."""
         frames = len(self.latencies_s)
         elapsed = (self.finished_s or time.perf_counter()) - self.started_s
         latency_ms = 1e3 * np.asarray(self.latencies_s) if frames else np.zeros(1)
@@ -143,4 +190,4 @@ class LiveStatistics:
                 "latency_ms": {"median": float(np.median(latency_ms)), "p95": float(np.percentile(latency_ms, 95)),
                                "max": float(latency_ms.max())},
                 "skipped_frames": self.skipped_frames, "dropped_frames": self.dropped_frames,
-                "recompilations": self.recompilations}
+                "stale_poses": self.stale_poses, "recompilations": self.recompilations}

@@ -25,6 +25,7 @@ from tactojax.io._imprints import load_imprints as load_imprints
 from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
 from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import export_ply as export_ply
+from tactojax.io._map import load_localization_map as load_localization_map
 from tactojax.io._map import load_tactile_map as load_tactile_map
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
@@ -86,6 +87,7 @@ __all__ = [
     "simulate_to_dataset",
     "CorruptMapError",
     "export_ply",
+    "load_localization_map",
     "load_tactile_map",
     "read_grasps",
     "load_test_episodes",

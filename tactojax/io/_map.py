@@ -112,6 +112,27 @@ def load_tactile_map(path) -> TactileMap:
                       sensor=str(header.get("sensor", "")))
 
 
+def load_localization_map(path, *, encoder_name: str | None = None):
+    """A map file as localization reads it (:class:`~tactojax.localize.LocalizationMap`: its
+    imprints, its surface, the object's symmetries), with the belief calibration its header
+    stores (``tactojax calibrate-belief``; uncalibrated without one).
+
+    Args:
+        path: a map written by :func:`save_tactile_map`, with features.
+        encoder_name: the encoder the features come from, when not the default: a calibration
+            fit with another encoder is not used.
+    """
+    from tactojax.io._encoder import DEFAULT_ENCODER
+    from tactojax.localize import LocalizationMap, calibration_from_json
+
+    tactile_map = load_tactile_map(path)
+    if tactile_map.features.shape[1] == 0:
+        raise ValueError(f"map {path} stores no features: build it with `tactojax map` (which encodes them)")
+    fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+    usable = fit is not None and fit.get("encoder") == (encoder_name or DEFAULT_ENCODER)
+    return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None)
+
+
 def tactile_map_metadata(path) -> dict:
     """The header of a map file (object, pitch, sensor and its ``metadata`` dict)."""
     header, _ = _read_npz(Path(path), arrays=False)

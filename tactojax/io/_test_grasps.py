@@ -91,7 +91,8 @@ def load_test_episodes(path: str | Path, object_id: str, model, encoder, *, prog
 
     from tactojax.features import encode_images
     from tactojax.geometry import heightmap_to_points
-    from tactojax.localize import TestEpisodes, cloud_moments
+    from tactojax.localize import TestEpisodes
+    from tactojax.localize._evaluate import cloud_moments
     from tactojax.mapping import observed_contact
     from tactojax.shape import predict_batch
 

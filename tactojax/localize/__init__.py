@@ -9,8 +9,9 @@ object between frames from there. The paper's one-touch methods (``random``, ``c
 
 A typical session::
 
-    view = LocalizationMap.from_tactile_map(tactile_map, calibration=...)  # once per object
-    belief = localize(view, [touch_a, touch_b], [T_world_sensor_a, T_world_sensor_b])
+    view = tactojax.io.load_localization_map("scissors.npz")   # once per object (calibration included)
+    touches = [touch_from_image(model, encoder, image, opening) for image, opening in frames]
+    belief = localize(view, touches, T_world_sensors)           # the robot's kinematics
     belief.T_world_object, belief.probability_within(2.0)
 """
 
@@ -37,7 +38,9 @@ from tactojax.localize._identify_episodes import identify_episodes as identify_e
 from tactojax.localize._identify_episodes import shared_calibration as shared_calibration
 from tactojax.localize._localize import localize as localize
 from tactojax.localize._localizer import LiveEstimate as LiveEstimate
+from tactojax.localize._localizer import LiveSettings as LiveSettings
 from tactojax.localize._localizer import Localizer as Localizer
+from tactojax.localize._localizer import touch_from_image as touch_from_image
 from tactojax.localize._map import BeliefCalibration as BeliefCalibration
 from tactojax.localize._map import LocalizationMap as LocalizationMap
 from tactojax.localize._map import Touch as Touch
@@ -57,6 +60,7 @@ __all__ = [
     "IcpSettings",
     "IdentificationResult",
     "LiveEstimate",
+    "LiveSettings",
     "LocalizationErrors",
     "LocalizationMap",
     "Localizer",
@@ -81,5 +85,6 @@ __all__ = [
     "map_size_study",
     "record_beliefs",
     "shared_calibration",
+    "touch_from_image",
     "update_belief",
 ]

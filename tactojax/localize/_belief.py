@@ -63,6 +63,13 @@ class BeliefSettings:
     """Best screened candidates scored with all the touch's points."""
     new_hypotheses: int = 24
     """Best coarse candidates of a new touch that join the pool."""
+    registered_sources: int = 8
+    """The most similar sources whose poses also start an ICP of the new touch against the
+    ``registration_union`` most similar imprints (the paper's CTI-ICP, from several starts):
+    their results join the pool too, so that a pose retrieval and registration find is never
+    missed by the grid (0: none)."""
+    registration_union: int = 5
+    """Imprints (the most similar) those registrations fit the touch against."""
     hypotheses: int = 64
     """Hypotheses a belief keeps (every symmetric copy and look-alike mode needs its own)."""
     max_touches: int = 6
@@ -223,7 +230,7 @@ def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSetting
     evidence = TouchEvidence(contact=jnp.zeros((slots, contact, 3)), contact_valid=jnp.zeros((slots, contact), bool),
                              free=jnp.zeros((slots, free, 3)), free_valid=jnp.zeros((slots, free), bool))
     return PoseBelief(T_object_reference=jaxlie.SE3.identity((count,)),
-                      log_weights=jnp.full((count,), -jnp.inf), evidence=evidence,
+                      log_weights=jnp.full((count,), -jnp.inf, jnp.float32), evidence=evidence,
                       features=jnp.zeros((slots, view.features.shape[1])),
                       T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
                       T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries, calibration=view.calibration, log_evidence=jnp.float32(-jnp.inf))
@@ -338,7 +345,25 @@ def candidates(view: LocalizationMap, belief: PoseBelief, evidence: TouchEvidenc
     scores = jax.vmap(lambda T: joint(T, belief.evidence))(T_object_reference)
     scores = jnp.where(jnp.isfinite(kept_scores), scores, -jnp.inf)
     best_scores, best = jax.lax.top_k(scores, settings.new_hypotheses)
-    return _take(T_object_reference, best), best_scores
+    T_best = _take(T_object_reference, best)
+    if settings.registered_sources == 0:
+        return T_best, best_scores
+    T_registered = register_sources(view, evidence, sources, sources_valid, settings) @ T_reference_touch.inverse()
+    registered_scores = jax.vmap(lambda T: joint(T, belief.evidence))(T_registered)
+    registered_scores = jnp.where(sources_valid[:settings.registered_sources], registered_scores, -jnp.inf)
+    return (jax.tree.map(lambda a, b: jnp.concatenate([a, b]), T_best, T_registered),
+            jnp.concatenate([best_scores, registered_scores]))
+
+
+def register_sources(view: LocalizationMap, evidence: TouchEvidence, sources: Int[Array, "N"],
+                     sources_valid: Bool[Array, "N"], settings: BeliefSettings) -> jaxlie.SE3:
+    """(R,) the new touch's sensor pose by ICP from each of the ``registered_sources`` most
+    similar sources' poses, against the ``registration_union`` most similar imprints (object frame)."""
+    union = settings.registration_union
+    starts = _take(view.T_object_sensor, sources[:settings.registered_sources])
+    register = jax.vmap(lambda T: icp(view, sources[:union], sources_valid[:union], evidence.contact,
+                                      evidence.contact_valid, T, settings.icp).T_object_sensor)
+    return register(starts)
 
 
 def refine(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,

@@ -316,7 +316,8 @@ def _without(tactile_map: TactileMap, view: LocalizationMap, held_out: np.ndarra
     """The map without the imprints ``held_out``: switched off, and out of its surface."""
     mask = np.zeros(len(tactile_map), bool)
     mask[held_out] = True
-    return view.with_imprint_valid(~mask).replace(surface=build_map_surface(tactile_map, exclude=mask))
+    return view.with_imprint_valid(~mask).replace(surface=build_map_surface(tactile_map, exclude=mask,
+                                                                            grid_like=view.surface))
 
 
 def map_size_study(

@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Int
 
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
-from tactojax.localize._map import LocalizationMap, Touch, canonical_touch
+from tactojax.localize._map import LocalizationMap, Touch, _strong, canonical_touch
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
@@ -32,6 +32,8 @@ def jitted_update(view: LocalizationMap, belief: PoseBelief, touch: Touch, T_wor
     inputs, so that repeated calls never recompile)."""
     exclude = exclude.astype(jnp.int32) if isinstance(exclude, jax.Array) else np.int32(exclude)
     T_world_sensor = jaxlie.SE3(jnp.asarray(T_world_sensor.wxyz_xyz, jnp.float32))
+    # Strong types: an updated belief has them, and a weakly typed one would compile apart.
+    belief = jax.tree.map(_strong, belief)
     return _update(view, belief, canonical_touch(touch), T_world_sensor, exclude, settings)
 
 

@@ -5,9 +5,10 @@ opening at that frame (and the second finger's frame on a two-sensor gripper). E
 one precompiled program (heightmap prediction, section IV, and whether the gel is touched);
 when a grasp has *settled* (``LiveSettings.settle_frames`` frames in contact with the gripper
 at rest), its touches (one per finger) update every map's pose belief once, with features
-from the encoder. Successive grasps of an object that stays put are fused by their sensor
-poses (the kinematics); :meth:`Localizer.reset` forgets them (the object was released or
-moved). Between updates every frame reports the belief as it stands, the sensor pose moved
+from the encoder. A grasp lasts until a frame shows no contact (the gripper opened); only its
+first settled state counts, as the gripper may then carry the object. Successive grasps of an
+object that stays put between them are fused by their sensor poses (the kinematics);
+:meth:`Localizer.reset` forgets them (the object was moved, or another one is grasped). Between updates every frame reports the belief as it stands, the sensor pose moved
 with the gripper.
 
 Several maps: each keeps its own belief, all under one calibration, so their evidences compare:
@@ -31,11 +32,12 @@ import jaxlie
 import numpy as np
 
 from tactojax.features import Encoder
+from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
 from tactojax.localize._identify_episodes import shared_calibration
-from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
@@ -121,6 +123,23 @@ def observe(model: ShapeModel, image: jax.Array,
     return pixels, heightmap, mask, shows_contact(pixels, model.background, mask)
 
 
+def touch_from_image(model: ShapeModel, encoder: Encoder, image: np.ndarray, opening_mm: float) -> Touch:
+    """A touch from one raw tactile frame: the heightmap the shape model predicts (section IV),
+    the contact mask the frame shows, and the encoder's features.
+
+    Args:
+        model: the sensor's shape model; encoder: the maps' retrieval encoder.
+        image: (H, W, 3) uint8 RGB frame (rectified, the shape model's size).
+        opening_mm: the gripper opening at the frame, mm.
+
+    Raises:
+        ValueError: a frame of the wrong size or type, or an opening that is not a positive number.
+    """
+    image = check_frame(image, opening_mm, (*model.image_shape, 3))
+    _, heightmap, mask, _ = observe(model, jnp.asarray(image))
+    return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=np.float32(opening_mm))
+
+
 def check_maps(maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder) -> list[TactileMap]:
     """The maps as a list, after a ValueError naming the first that the model or encoder cannot serve."""
     maps = list(maps)
@@ -158,6 +177,29 @@ def check_gripper_pose(T_world_gripper) -> np.ndarray | None:
     if pose.shape != (7,) or not np.isfinite(pose).all():
         raise ValueError(f"the gripper pose must be one finite SE3 (wxyz_xyz (7,)), got shape {pose.shape}")
     return pose
+
+
+def frame_kinematics(gripper: jax.Array, opening: jax.Array, T_world_object: jax.Array,
+                     T_object_sensor: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """The poses a frame needs, (7,) wxyz_xyz each, mm: the sensor finger's and the opposite
+    finger's ``T_world_sensor`` for a gripper pose and opening; that sensor in the frame of an
+    object at ``T_world_object``; and the object's pose in the world when that sensor sits at
+    ``T_object_sensor`` in its frame. One compiled program: a frame runs no eager pose arithmetic
+    (each such operation would compile once on first use, mid-loop, and dispatch every frame)."""
+    T_world_gripper = jaxlie.SE3(gripper)
+    T_world_sensor = sensor_pose(T_world_gripper, opening)
+    return (T_world_sensor.wxyz_xyz, opposite_sensor_pose(T_world_gripper, opening).wxyz_xyz,
+            (jaxlie.SE3(T_world_object).inverse() @ T_world_sensor).wxyz_xyz,
+            (T_world_sensor @ jaxlie.SE3(T_object_sensor).inverse()).wxyz_xyz)
+
+
+def gripper_motion(previous: np.ndarray, gripper: np.ndarray) -> tuple[float, float]:
+    """How far (mm) and by how much (degrees) the gripper moved between two poses (7,)
+    wxyz_xyz (NumPy: the frame loop's host-side check)."""
+    q0, q1 = np.asarray(previous[:4], np.float64), np.asarray(gripper[:4], np.float64)
+    cosine = abs(q0 @ q1) / max(np.linalg.norm(q0) * np.linalg.norm(q1), 1e-12)
+    angle = 2.0 * np.arccos(min(cosine, 1.0))
+    return float(np.linalg.norm(np.asarray(gripper[4:], np.float64) - previous[4:])), float(np.rad2deg(angle))
 
 
 def _summarise(belief: PoseBelief, modes: int):
@@ -215,10 +257,14 @@ class Localizer:
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
         update = jax.jit(lambda view, belief, touch, T: update_belief(view, belief, touch, T, settings))
         summarise = jax.jit(lambda belief: _summarise(belief, live.modes))
-        self._empty = tuple(empty_belief(view, settings) for view in self.views)
+        # Strongly typed, as every updated belief is (a weak type would not match them).
+        self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
         self._update = tuple(update.lower(view, empty, example_touch, pose).compile()
                              for view, empty in zip(self.views, self._empty))
         self._summarise = tuple(summarise.lower(empty).compile() for empty in self._empty)
+        scalar = jax.ShapeDtypeStruct((), jnp.float32)
+        self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
+                                                           pose.wxyz_xyz).compile()
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self.reset()
@@ -289,10 +335,18 @@ class Localizer:
             return False
         if gripper is None or previous is None:
             return gripper is None and previous is None
-        motion = jaxlie.SE3(previous).inverse() @ jaxlie.SE3(gripper)
-        angle = np.rad2deg(np.linalg.norm(np.asarray(motion.rotation().log())))
-        return bool(np.linalg.norm(np.asarray(motion.translation())) <= self.live.still_mm
-                    and angle <= self.live.still_deg)
+        distance, angle = gripper_motion(previous, gripper)
+        return distance <= self.live.still_mm and angle <= self.live.still_deg
+
+    def _poses(self, gripper: np.ndarray | None, opening_mm: float, T_world_object: np.ndarray | None = None,
+               T_object_sensor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`frame_kinematics` (compiled) as (7,) float32 NumPy poses; a missing gripper pose
+        is the identity."""
+        identity = _IDENTITY
+        return jax.device_get(self._kinematics(
+            identity if gripper is None else gripper, np.float32(opening_mm),
+            identity if T_world_object is None else T_world_object,
+            identity if T_object_sensor is None else T_object_sensor))
 
     def _fuse_grasp(self, image, heightmap, mask, opening_mm, gripper, second_image) -> None:
         """Update every map's belief with this grasp's touches (sensor finger, then the other)."""
@@ -300,19 +354,19 @@ class Localizer:
             if self.grasps:
                 self.reset()
             self._poses_known = gripper is not None
-        T_world_gripper = jaxlie.SE3(jnp.asarray(gripper if gripper is not None else _IDENTITY))
         opening = np.float32(opening_mm)
+        T_world_sensor, T_world_opposite, _, _ = self._poses(gripper, opening)
         touches = [(Touch(heightmap=heightmap, mask=mask, feature=self._encode(self._encoder, image), opening=opening),
-                    sensor_pose(T_world_gripper, opening))]
+                    T_world_sensor)]
         if second_image is not None:
             second_heightmap, second_mask, second_contact = self._observe(*self._model, second_image)
             if bool(second_contact):
                 touches.append((Touch(heightmap=second_heightmap, mask=second_mask,
                                       feature=self._encode(self._encoder, second_image), opening=opening),
-                                opposite_sensor_pose(T_world_gripper, opening)))
+                                T_world_opposite))
         for m, (view, update) in enumerate(zip(self.views, self._update)):
-            for touch, T_world_sensor in touches:
-                self.beliefs[m] = update(view, self.beliefs[m], touch, jaxlie.SE3(T_world_sensor.wxyz_xyz))
+            for touch, T_world_touch in touches:
+                self.beliefs[m] = update(view, self.beliefs[m], touch, jaxlie.SE3(T_world_touch))
         self.grasps += 1
         summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, self.beliefs)])
         log_evidence = np.array([s[4] for s in summaries], np.float64)
@@ -326,7 +380,7 @@ class Localizer:
         T_world_object, within, T_modes, mode_probability, _ = summaries[chosen]
         modes = tuple((jaxlie.SE3(np.asarray(T)), float(p)) for T, p in zip(T_modes, mode_probability) if p > 0)
         self._summary = (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
-                         jaxlie.SE3(np.asarray(T_world_object)), float(within), modes)
+                         np.asarray(T_world_object, np.float32), float(within), modes)
 
     def _estimate(self, contact: bool, updated: bool, gripper, opening_mm: float, latency_s: float) -> LiveEstimate:
         if self._summary is None:
@@ -336,11 +390,10 @@ class Localizer:
         chosen, probabilities, T_world_object, within, modes = self._summary
         T_object_sensor = None
         if gripper is not None or not self._poses_known:
-            T_world_gripper = jaxlie.SE3(np.asarray(gripper if gripper is not None else _IDENTITY))
-            T_world_sensor = sensor_pose(T_world_gripper, np.float32(opening_mm))
-            T_object_sensor = jaxlie.SE3(np.asarray((T_world_object.inverse() @ T_world_sensor).wxyz_xyz))
+            _, _, T_object_sensor, _ = self._poses(gripper, opening_mm, T_world_object)
+            T_object_sensor = jaxlie.SE3(T_object_sensor)
         return LiveEstimate(object_id=self.object_ids[chosen], object_probabilities=probabilities,
-                            T_object_sensor=T_object_sensor, T_world_object=T_world_object,
+                            T_object_sensor=T_object_sensor, T_world_object=jaxlie.SE3(T_world_object),
                             probability_within=within, modes=modes, contact=contact, grasps=self.grasps,
                             updated=updated, latency_s=latency_s)
 

@@ -82,7 +82,7 @@ class MapSurface:
 
 
 def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = SurfaceSettings(), *,
-                      exclude: int | np.ndarray = -1) -> MapSurface:
+                      exclude: int | np.ndarray = -1, grid_like: MapSurface | None = None) -> MapSurface:
     """The signed-distance grid of a map's stored contact points (see the module docstring).
 
     Args:
@@ -90,6 +90,8 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
         settings: grid pitch, reach and margin.
         exclude: an imprint left out (leave-one-out), -1 for none, or a (K,) mask of imprints
             left out (a held-out fold).
+        grid_like: build on this surface's grid (origin, shape and pitch): a surface of the
+            same map without some imprints then has the same shapes (no recompilation).
 
     Returns:
         the :class:`MapSurface` (an empty map gives a one-cell grid that knows nothing).
@@ -106,9 +108,16 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
     normals = np.asarray(tactile_map.normals_object, np.float64)[valid]
     pitch = settings.pitch_mm
     if len(points) == 0:
+        if grid_like is not None:
+            return grid_like.replace(distance=jnp.full(grid_like.distance.shape, jnp.nan, jnp.float32))
         return MapSurface(distance=jnp.full((2, 2, 2), jnp.nan, jnp.float32), origin=jnp.zeros(3), pitch_mm=pitch)
-    origin = points.min(axis=0) - settings.margin_mm
-    shape = tuple(int(n) for n in np.ceil((points.max(axis=0) + settings.margin_mm - origin) / pitch) + 1)
+    if grid_like is None:
+        origin = points.min(axis=0) - settings.margin_mm
+        shape = tuple(int(n) for n in np.ceil((points.max(axis=0) + settings.margin_mm - origin) / pitch) + 1)
+    else:
+        origin, shape, pitch = np.asarray(grid_like.origin, np.float64), grid_like.distance.shape, grid_like.pitch_mm
+        inside = np.all((points >= origin) & (points <= origin + (np.array(shape) - 1) * pitch), axis=1)
+        points, normals = points[inside], normals[inside]
     # Only cells near a stored point can be known: mark the points' cells, grow by the reach.
     occupied = np.zeros(shape, bool)
     occupied[tuple(np.round((points - origin) / pitch).astype(int).T)] = True

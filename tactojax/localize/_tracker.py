@@ -23,7 +23,8 @@ row a re-localization is tried. A re-localization replaces the track only if it 
 better (``degraded_mm``), as a far-away pose that fits about as well is more likely a look-alike
 than a jump. A touch smaller than ``min_relocalize_px`` contact pixels never re-localizes a
 followed object: a pinpoint contact fits many places about equally well. A frame without contact
-ends the track and forgets the belief (the object was released).
+ends the track (the grasp is over); the belief keeps the grasps so far, and the next settled grasp
+is fused with them and starts a new track. :meth:`Tracker.reset` forgets everything.
 
 Registration is against the map, not against the previous frame, so errors do not add up from
 frame to frame; what can drift is a slide along a direction the surface does not constrain
@@ -45,7 +46,6 @@ import jaxlie
 import numpy as np
 
 from tactojax.features import Encoder
-from tactojax.geometry import sensor_pose
 from tactojax.localize._belief import BeliefSettings
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._icp import IcpSettings, icp
@@ -219,8 +219,8 @@ class Tracker:
         self.object_ids, self.image_shape = self.localizer.object_ids, self.localizer.image_shape
         start = time.perf_counter()
         touch = Touch(heightmap=jax.ShapeDtypeStruct(model.image_shape, jnp.float32),
-                      mask=jax.ShapeDtypeStruct(model.image_shape, jnp.bool_), feature=jnp.zeros(()),
-                      opening=jnp.float32(0.0))
+                      mask=jax.ShapeDtypeStruct(model.image_shape, jnp.bool_), feature=_NO_FEATURE,
+                      opening=_NO_OPENING)
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
         frame = jax.jit(functools.partial(_track_frame, tracking=tracking, settings=icp))
         self._track = tuple(frame.lower(view, touch, pose, pose).compile() for view in self.localizer.views)
@@ -268,12 +268,13 @@ class Tracker:
         image = check_frame(image, opening_mm, self.image_shape)
         gripper = check_gripper_pose(T_world_gripper)
         heightmap, mask, contact = self.localizer._observe(*self.localizer._model, image)
-        if not bool(contact):
-            self.reset()
-            return self._estimate(None, False, gripper, opening_mm, False, 0.0, start)
+        if not bool(contact):  # released: the track ends, the belief stays (the object stays put)
+            self._previous, self._before, self._unsupported = None, None, 0
+            estimate = self.localizer(image, opening_mm, T_world_gripper, second_image)
+            return dataclasses.replace(estimate, latency_s=time.perf_counter() - start)
         chosen, T_previous = self._previous
         T_before = self._before if self._before is not None else T_previous
-        touch = Touch(heightmap=heightmap, mask=mask, feature=jnp.zeros(()), opening=jnp.float32(0.0))
+        touch = Touch(heightmap=heightmap, mask=mask, feature=_NO_FEATURE, opening=_NO_OPENING)
         tracked, matched, informative = jax.device_get(self._track[chosen](
             self.localizer.views[chosen], touch, jaxlie.SE3(T_previous), jaxlie.SE3(T_before)))
         lost = informative & ((self._unsupported >= self.tracking.max_unsupported_frames)
@@ -287,7 +288,7 @@ class Tracker:
         self.tracked_frames += 1
         pose = np.asarray(tracked.T_object_sensor.wxyz_xyz, np.float32)
         self._before, self._previous = T_previous, (chosen, pose)
-        return self._estimate(chosen, True, gripper, opening_mm, True, float(tracked.score), start)
+        return self._estimate(chosen, gripper, opening_mm, float(tracked.score), start)
 
     def _start_from_belief(self, image: np.ndarray, estimate: LiveEstimate) -> None:
         """Follow from the belief's best pose of this frame's sensor (the grasp just fused)."""
@@ -308,7 +309,7 @@ class Tracker:
             return None
         new = self.object_ids.index(estimate.object_id)
         T_belief = np.asarray(estimate.T_object_sensor.wxyz_xyz, np.float32)
-        touch = Touch(heightmap=heightmap, mask=mask, feature=jnp.zeros(()), opening=jnp.float32(0.0))
+        touch = Touch(heightmap=heightmap, mask=mask, feature=_NO_FEATURE, opening=_NO_OPENING)
         fit, fit_matched, _ = jax.device_get(self._track[new](self.localizer.views[new], touch,
                                                               jaxlie.SE3(T_belief), jaxlie.SE3(T_belief)))
         better = not matched or float(selection_cost(fit)) + self.tracking.degraded_mm < float(selection_cost(tracked))
@@ -320,18 +321,19 @@ class Tracker:
         return dataclasses.replace(estimate, T_object_sensor=jaxlie.SE3(self._previous[1]),
                                    residual_mm=float(fit.score))
 
-    def _estimate(self, chosen, has_pose, gripper, opening_mm, tracked, residual_mm, start) -> LiveEstimate:
+    def _estimate(self, chosen, gripper, opening_mm, residual_mm, start) -> LiveEstimate:
+        """A tracked frame's estimate."""
         probabilities, within = self._belief_numbers
-        if not has_pose:
-            return LiveEstimate(object_id=None, object_probabilities={n: 0.0 for n in self.object_ids},
-                                T_object_sensor=None, T_world_object=None, probability_within=0.0, modes=(),
-                                contact=False, grasps=0, updated=False, latency_s=time.perf_counter() - start)
         T_object_sensor = jaxlie.SE3(self._previous[1])
         T_world_object = None
-        if gripper is not None:
-            T_world_sensor = sensor_pose(jaxlie.SE3(gripper), np.float32(opening_mm))
-            T_world_object = jaxlie.SE3(np.asarray((T_world_sensor @ T_object_sensor.inverse()).wxyz_xyz))
+        if gripper is not None:  # the compiled kinematics: no eager pose arithmetic per frame
+            T_world_object = jaxlie.SE3(self.localizer._poses(gripper, opening_mm, None, self._previous[1])[3])
         return LiveEstimate(object_id=self.object_ids[chosen], object_probabilities=probabilities,
                             T_object_sensor=T_object_sensor, T_world_object=T_world_object, probability_within=within,
                             modes=(), contact=True, grasps=self.localizer.grasps, updated=False,
-                            latency_s=time.perf_counter() - start, tracked=tracked, residual_mm=residual_mm)
+                            latency_s=time.perf_counter() - start, tracked=True, residual_mm=residual_mm)
+
+
+_NO_FEATURE = np.zeros((), np.float32)
+"""A tracked frame's touch has no features (NumPy: no device operation per frame)."""
+_NO_OPENING = np.float32(0.0)

@@ -16,13 +16,17 @@ Everything is in millimetres. The entity tree of a recording:
   sensor z axis, length and opacity growing with its probability, and ``Points3D`` at their
   origins, radius growing with it). ``metrics/translation_error_mm`` and
   ``metrics/probability`` are scalars on the same timeline.
-* ``live/...`` for ``tactojax localize-live --view``: ``live/image``, ``live/confidence``, and
-  ``maps/<object>/live`` (the estimated sensor frame) on the ``frame`` timeline.
+* ``live/...`` for ``tactojax localize-live --view``: ``live/image``, ``live/probability_within_2mm``
+  (the belief's P(within 2 mm)), ``live/object_probability/<object>`` (P(object) of every map),
+  and ``maps/<object>/live`` (the estimated sensor frame, on frames with an estimate) on the
+  ``frame`` timeline.
 
 Estimates (:func:`read_estimates`) are a JSON list of objects, a single object (``tactojax
-localize --json``), or an object with an ``estimates`` list (``tactojax localize-live --json``).
+localize --json``), or an object with an ``estimates`` list (``tactojax localize-live --json``;
+its frames without an estimate are left out).
 Each entry: ``object_id``; ``T_object_sensor_wxyz_xyz`` (7 numbers, wxyz then xyz in mm) and
-optionally ``T_object_sensor_true_wxyz_xyz``, ``probability`` (or ``confidence``), ``touch``
+optionally ``T_object_sensor_true_wxyz_xyz``, ``probability`` (or ``probability_within_2mm``,
+a belief's P(within 2 mm), or ``confidence``), ``touch``
 (the touch's index in the test dataset, default the entry's position) and ``belief``: a list
 of ``{"T_object_sensor_wxyz_xyz": [...], "probability": p}`` hypotheses (a pose belief). An
 entry may hold only a ``belief``; its most probable hypothesis is then the estimate.
@@ -184,8 +188,10 @@ def log_live_estimate(recording, frame: int, estimate: Mapping, *, image: np.nda
     recording.set_time("frame", sequence=int(frame))
     if image is not None:
         recording.log("live/image", rr.Image(image))
-    recording.log("live/confidence", rr.Scalars(float(estimate.get("confidence", 0.0))))
-    if estimate.get("contact", True):
+    recording.log("live/probability_within_2mm", rr.Scalars(float(estimate.get("probability_within_2mm", 0.0))))
+    for object_id, probability in estimate.get("object_probabilities", {}).items():
+        recording.log(f"live/object_probability/{entity_name(object_id)}", rr.Scalars(float(probability)))
+    if estimate.get("object_id") is not None and estimate.get("T_object_sensor_wxyz_xyz") is not None:
         recording.log(f"maps/{entity_name(estimate['object_id'])}/live",
                       _frame(estimate["T_object_sensor_wxyz_xyz"], axis_mm))
 
@@ -293,8 +299,11 @@ def read_estimates(path: str | os.PathLike) -> list[dict]:
         raise FileNotFoundError(f"no estimates file {path}") from None
     except json.JSONDecodeError as error:
         raise ValueError(f"{path.name}: not valid JSON ({error})") from None
-    if isinstance(payload, dict):
-        payload = payload["estimates"] if isinstance(payload.get("estimates"), list) else [payload]
+    if isinstance(payload, dict) and isinstance(payload.get("estimates"), list):  # localize-live --json
+        payload = [entry for entry in payload["estimates"] if not isinstance(entry, dict)
+                   or (entry.get("object_id") is not None and entry.get("T_object_sensor_wxyz_xyz") is not None)]
+    elif isinstance(payload, dict):
+        payload = [payload]
     if not isinstance(payload, list):
         raise ValueError(f"{path.name}: expected a list of estimates")
     entries = []
@@ -321,7 +330,7 @@ def read_estimates(path: str | os.PathLike) -> list[dict]:
         _pose(checked["T_object_sensor_wxyz_xyz"], label)
         if entry.get("T_object_sensor_true_wxyz_xyz") is not None:
             _pose(entry["T_object_sensor_true_wxyz_xyz"], f"{label} (true pose)")
-        probability = checked.get("probability", entry.get("confidence"))
+        probability = checked.get("probability", entry.get("probability_within_2mm", entry.get("confidence")))
         checked["probability"] = _probability(probability, label, required=False)
         entries.append(checked)
     return entries

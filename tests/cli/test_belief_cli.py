@@ -41,14 +41,15 @@ def test_new_grasps_fuse_with_the_calibrated_belief(calibrated, tiny_encoder_pat
     folder, map_path, model, _ = calibrated
     report = tmp_path / "new.json"
     assert main(["eval-localization", map_path, "--test", str(folder / "test"), "--fingers", "2", "--methods",
-                 "cti-icp-2,belief", "--model", model, "--encoder", str(tiny_encoder_path), "--json", str(report),
+                 "cti,belief", "--model", model, "--encoder", str(tiny_encoder_path), "--json", str(report),
                  "--figure", str(tmp_path / "new.png")]) == 0
     captured = capsys.readouterr()
     assert "holds no belief calibration" not in captured.err
     assert "belief calibration: predicted P(error <= 2 mm)" in captured.out
     result = json.loads(report.read_text())["objects"]["cylinder"]
+    assert result["calibrated"]  # the belief ran with the map's stored fit
     rows = {(r["method"], r["grasps"], r["fused"]): r for r in result["results"]}
-    assert rows[("cti-icp-2", 1, False)]["count"] == 3 * 2 and rows[("belief", 1, False)]["count"] == 3 * 2
+    assert rows[("cti", 1, False)]["count"] == 3 * 2 and rows[("belief", 1, False)]["count"] == 3 * 2
     assert rows[("belief", 1, True)]["count"] == 3 and rows[("belief", 2, True)]["count"] == 3
     for row in result["results"]:
         assert np.isfinite(row["median_rmse_mm"]) and row["median_symmetric_rmse_mm"] <= row["median_rmse_mm"] + 1e-6

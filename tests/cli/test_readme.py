@@ -30,7 +30,8 @@ README = Path(__file__).resolve().parents[2] / "README.md"
 
 SMALLER = {
     "simulate": ["--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0", "90", "--touches", "6", "--no-progress"],
-    "demo": ["--objects", "tape_roll", "gum_box", "--grid-mm", "40", "--calibration-touches", "2", "--queries", "3"],
+    "demo": ["--objects", "tape_roll", "gum_box", "--grid-mm", "40", "--calibration-touches", "2", "--queries", "3",
+             "--episodes", "1", "--grasps", "2"],
     "train": ["--steps", "3", "--pixel-steps", "3", "--batch-size", "2", "--test-per-object", "2", "--no-progress"],
     "eval-shape": ["--held-out", "2"],
     "map": ["--points", "256", "--no-progress"],
@@ -78,7 +79,7 @@ PRINTS = {
     "map": ["distance to true surface"],
     "fit-shape": ["converged"],
     "identify": ["identification top-1"],
-    "localize": ["scissors (similarity"],
+    "localize": ["scissors (P(object)", "P(within 2 mm)"],
     "repair": ["every chunk is intact"],
     "import-bag": ["touches written"],
 }

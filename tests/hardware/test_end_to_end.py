@@ -46,6 +46,8 @@ def test_recording_matches_the_simulator_run_directly(recording, small_spec, tmp
 
 
 def test_a_new_grasp_is_localized_in_the_recorded_map(recording, small_spec, lookup_model, tiny_encoder_path):
+    """A grasp off the mapping grid, through the cell's camera, gripper and pose feed: the
+    belief puts the box where the scene holds it."""
     path, _, obj = recording
     grasps = read_grasps(path)
     tactile_map = build_tactile_map(lookup_model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
@@ -53,7 +55,7 @@ def test_a_new_grasp_is_localized_in_the_recorded_map(recording, small_spec, loo
                                     points_per_imprint=256, progress=False)
     encoder = load_encoder(tiny_encoder_path)
     tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images))
-    localizer = Localizer([tactile_map], lookup_model, encoder, method="cti-icp-2")
+    localizer = Localizer([tactile_map], lookup_model, encoder)
 
     plan = mapping_plan(obj, PROTOCOL)
     index = int(np.argmax(np.asarray(grasps["openings"]) < 40.0))  # a grasp across the box's thin side
@@ -65,15 +67,18 @@ def test_a_new_grasp_is_localized_in_the_recorded_map(recording, small_spec, loo
         assert cell.robot.grasp() is not None
         frame = cell.camera.read()
         opening = cell.gripper.opening_mm()
-        estimate = localizer(frame.image, opening)
-        T_world_gripper = cell.scene.T_world_gripper
+        T_world_gripper = cell.poses.pose_at(frame.timestamp_s, max_skew_s=1.0).T_world_gripper  # the robot's feed
+        estimate = localizer.fuse(frame.image, opening, T_world_gripper)  # the robot knows its grasp is done
         T_world_object = cell.scene.T_world_object
     T_object_sensor = T_world_object.inverse() @ sensor_pose(T_world_gripper, np.float32(opening))
     # The box is symmetric: the error is the smallest over its symmetry group.
     candidates = obj.symmetry.transforms() @ estimate.T_object_sensor
     errors = np.linalg.norm(np.asarray(candidates.translation()) - np.asarray(T_object_sensor.translation()),
                             axis=-1)
-    print(f"new grasp: position error {errors.min():.2f} mm, confidence {estimate.confidence:.3f} "
-          f"(residual {estimate.residual_mm:.2f} mm, overlap {estimate.overlap:.2f}, converged {estimate.converged})")
-    assert estimate.object_id == obj.name and estimate.contact
-    assert errors.min() < 5.0
+    copies = T_world_object @ obj.symmetry.transforms()
+    offsets = np.linalg.norm(np.asarray((copies.inverse() @ estimate.T_world_object).translation()), axis=-1)
+    print(f"new grasp: sensor position error {errors.min():.2f} mm, object position error {offsets.min():.2f} mm, "
+          f"P(within 2 mm) {estimate.probability_within:.3f}")
+    assert estimate.object_id == obj.name and estimate.contact and estimate.updated and estimate.grasps == 1
+    assert estimate.object_probabilities == {obj.name: 1.0} and 0.0 <= estimate.probability_within <= 1.0
+    assert errors.min() < 5.0 and offsets.min() < 5.0

@@ -13,6 +13,9 @@ import numpy as np
 import pytest
 
 from tactojax.geometry import pixel_grid
+from tactojax.localize import BeliefSettings, LocalizationMap
+from tactojax.localize._candidates import CandidateGrid
+from tactojax.localize._surface import SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap, sample_contact_points
 
 HEIGHT_PX, WIDTH_PX, MM_PER_PX = 24, 32, 0.5
@@ -85,10 +88,78 @@ def ridges_map():
     return make_map(ridges, [sensor_pose(x, y, 10.0) for x, y in GRID], "ridges")
 
 
+SURFACE = SurfaceSettings(pitch_mm=0.25, reach_mm=1.0, margin_mm=2.0)
+"""The synthetic maps' surface grid (finer than the catalog's: their presses are 0.5 mm/px)."""
+
+
+@pytest.fixture(scope="session")
+def belief_settings():
+    """A small belief (few sources, offsets and hypotheses): every test that runs the belief
+    shares these settings, so that each map compiles the update once."""
+    return BeliefSettings(sources=4, grid=CandidateGrid(shift_mm=1.5, shift_steps=1, turn_deg=5.0, turn_steps=1),
+                          new_hypotheses=6, registered_sources=2, registration_union=3, hypotheses=8, refine=4,
+                          max_touches=2)
+
+
+@pytest.fixture(scope="session")
+def bumps_view(bumps_map):
+    """The bumps map as localization reads it (surface built once per session)."""
+    return LocalizationMap.from_tactile_map(bumps_map, surface=SURFACE)
+
+
+@pytest.fixture(scope="session")
+def ridges_view(ridges_map, bumps_view):
+    """The ridges map, its surface on the bumps' grid: both views have the same shapes, so that
+    everything compiled for one serves the other."""
+    view = LocalizationMap.from_tactile_map(ridges_map, surface=SURFACE)
+    return view.replace(surface=build_map_surface(ridges_map, SURFACE, grid_like=bumps_view.surface))
+
+
 @pytest.fixture(scope="session")
 def synthetic():
     """The helpers above (test modules cannot import a conftest)."""
     import types
 
     return types.SimpleNamespace(bumps=bumps, ridges=ridges, render=render, sensor_pose=sensor_pose,
-                                 make_map=make_map, grid=GRID)
+                                 make_map=make_map, grid=GRID, surface=SURFACE, touch=touch)
+
+
+def touch(surface, T_object_sensor, opening=20.0):
+    """The :class:`~tactojax.localize.Touch` of a press at ``T_object_sensor`` (its feature the
+    stand-in's, as a one-imprint map computes it)."""
+    from tactojax.localize import Touch
+
+    heightmap, mask = render(surface, T_object_sensor)
+    feature = standin_features(heightmap[None], mask[None])[0]
+    return Touch(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask), feature=jnp.asarray(feature, jnp.float32),
+                 opening=jnp.float32(opening))
+
+
+@pytest.fixture(scope="session")
+def live_tracker(cylinder_map, gum_box_map, lookup_model, tiny_encoder_path, belief_settings):
+    """A :class:`~tactojax.localize.Tracker` over the cylinder and the gum box (features from the
+    tiny encoder), with the small belief; its ``localizer`` serves the live localizer's tests
+    (one set of compilations for both)."""
+    from tactojax.features import encode_images
+    from tactojax.io import load_encoder
+    from tactojax.localize import Tracker
+
+    encoder = load_encoder(tiny_encoder_path)
+    maps = [m.with_features(encode_images(encoder, m.images)) for m in (cylinder_map, gum_box_map)]
+    return Tracker(maps, lookup_model, encoder, settings=belief_settings), maps, encoder
+
+
+@pytest.fixture(scope="session")
+def grasp_frames():
+    """``frames(tactile_map, index, T_world_object)``: imprint ``index`` of a map as a live frame
+    (image, opening, T_world_gripper) for an object at ``T_world_object``, and its true sensor
+    pose in the object frame."""
+    from tactojax.geometry import gripper_pose
+
+    def frames(tactile_map, index, T_world_object):
+        T_object_sensor = jaxlie.SE3(tactile_map.T_object_sensor.wxyz_xyz[index])
+        opening = float(tactile_map.openings[index])
+        T_world_gripper = gripper_pose(T_world_object @ T_object_sensor, jnp.float32(opening))
+        return np.asarray(tactile_map.images[index]), opening, T_world_gripper, T_object_sensor
+
+    return frames

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from tactojax.localize import BeliefCalibration, BeliefRecord, fit_calibration, predict_within
+from tactojax.localize import BeliefCalibration, fit_calibration
+from tactojax.localize._calibrate import BeliefRecord, predict_within
 
 
 def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12):

@@ -1,11 +1,11 @@
-"""Projective correspondences against a numpy reference."""
+"""Projective and nearest-point correspondences against a numpy reference."""
 
 import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from tactojax.localize import LocalizationMap, find_correspondences, surface_lookup
+from tactojax.localize._correspondences import find_correspondences, nearest_correspondences, surface_lookup
 
 
 def _bilinear_numpy(heightmap, mask, x, y, mm_per_px):
@@ -43,8 +43,8 @@ def test_surface_lookup_matches_numpy():
     assert checked > 100
 
 
-def test_find_correspondences_matches_a_loop(bumps_map):
-    view = LocalizationMap.from_tactile_map(bumps_map)
+def test_find_correspondences_matches_a_loop(bumps_map, bumps_view):
+    view = bumps_view
     candidates = jnp.array([6, 7, 11, 12])
     candidate_valid = jnp.array([True, True, False, True])
     # Imprint 13's points plus noise (sub-pixel along x, y: the presses' pixel grids coincide,
@@ -85,10 +85,11 @@ def test_find_correspondences_matches_a_loop(bumps_map):
     assert int(matches.valid.sum()) > 50
 
 
-def test_residual_is_the_distance_along_the_normal_on_a_plane(bumps_map):
-    # A flat heightmap h = 0.5: the surface is the plane z_sensor = -0.5.
-    view = LocalizationMap.from_tactile_map(bumps_map.replace(
-        heightmaps=jnp.full_like(bumps_map.heightmaps, 0.5), masks=jnp.ones_like(bumps_map.masks)))
+def test_residual_is_the_distance_along_the_normal_on_a_plane(bumps_map, bumps_view):
+    # A flat heightmap h = 0.5: the surface is the plane z_sensor = -0.5 (correspondences read
+    # the stored heightmaps, not the map's surface).
+    view = bumps_view.replace(
+        heightmaps=jnp.full_like(bumps_map.heightmaps, 0.5), masks=jnp.ones_like(bumps_map.masks))
     T = jax.tree.map(lambda x: x[12], bumps_map.T_object_sensor)
     p_sensor = jnp.array([[1.0, 2.0, -0.5 + 0.3], [0.0, 0.0, -0.5 - 0.2]])
     matches = jax.jit(find_correspondences, static_argnums=5)(
@@ -100,9 +101,9 @@ def test_residual_is_the_distance_along_the_normal_on_a_plane(bumps_map):
     assert isinstance(T, jaxlie.SE3)
 
 
-def test_per_point_candidates_match_each_row_shared(bumps_map):
+def test_per_point_candidates_match_each_row_shared(bumps_map, bumps_view):
     """(P, N) candidates: every point is matched exactly as if its own row were shared by all."""
-    view = LocalizationMap.from_tactile_map(bumps_map)
+    view = bumps_view
     rows = (jnp.array([6, 7, 11, 12]), jnp.array([12, 13, 17, 18]))
     rows_valid = (jnp.array([True, True, False, True]), jnp.array([True, True, True, True]))
     rng = np.random.default_rng(2)
@@ -123,3 +124,22 @@ def test_per_point_candidates_match_each_row_shared(bumps_map):
         for field in ("residual", "target", "normal"):
             np.testing.assert_allclose(np.asarray(getattr(per_point, field))[found],
                                        np.asarray(getattr(shared, field))[found], atol=1e-5)
+
+
+def test_nearest_correspondences_match_numpy(bumps_map, bumps_view):
+    view = bumps_view
+    rng = np.random.default_rng(0)
+    points = np.asarray(bumps_map.points_object[12, :40]) + rng.normal(0, 0.3, (40, 3))
+    candidates, candidate_valid = jnp.array([7, 12, 13]), jnp.array([True, False, True])
+    matches = jax.jit(nearest_correspondences, static_argnums=5)(
+        view, candidates, candidate_valid, jnp.asarray(points, jnp.float32), jnp.ones(40, bool), 1.0)
+    targets = np.asarray(view.points)[[7, 13]].reshape(-1, 3)
+    normals = np.asarray(view.normals)[[7, 13]].reshape(-1, 3)
+    target_valid = np.asarray(view.points_valid)[[7, 13]].reshape(-1)
+    for p in range(40):
+        distance = np.where(target_valid, np.linalg.norm(targets - points[p], axis=1), np.inf)
+        j = int(np.argmin(distance))
+        assert bool(matches.valid[p]) == (distance[j] <= 1.0)
+        np.testing.assert_allclose(np.asarray(matches.target[p]), targets[j], atol=1e-5)
+        np.testing.assert_allclose(float(matches.residual[p]), normals[j] @ (points[p] - targets[j]), atol=1e-4)
+        assert int(matches.candidate[p]) == (0 if j < targets.shape[0] // 2 else 2)

@@ -1,4 +1,4 @@
-"""Leave-one-out evaluation against a numpy reference; map-size study; oracle retrieval."""
+"""Leave-one-out evaluation against a numpy reference; the belief's Table III; map-size study; oracle retrieval."""
 
 import jax
 import jaxlie
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tactojax.localize import closest_imprints
-from tactojax.localize._evaluate import cloud_moments, evaluate_localization, map_size_study, moment_rmse
+from tactojax.localize import evaluate_localization, map_size_study
+from tactojax.localize._evaluate import cloud_moments, moment_rmse
+from tactojax.localize._retrieval import closest_imprints
 
 
 def _matrices(T):
@@ -79,6 +80,7 @@ def test_summary_and_histogram(cti_errors):
         assert summary["rmse_mm"]["median"] == pytest.approx(float(np.median(errors.rmse)))
         assert len(summary["histogram"]["counts"]) == len(summary["histogram"]["edges_mm"])
     assert np.median(results["cti"].rmse) < np.median(results["random"].rmse)
+    assert np.all(np.isnan(results["cti"].probability))  # a baseline has no belief
 
 
 def test_oracle_retrieval_is_the_truly_nearest_imprint(bumps_map, cti_errors):
@@ -99,3 +101,22 @@ def test_map_size_study_queries_only_held_out_imprints(bumps_map):
     assert len(full.queries) == 25 and len(part.queries) == 15
     in_map = np.setdiff1d(np.arange(25), part.queries)
     assert np.isin(part.imprint_index, in_map).all()
+
+
+def test_table_iii_with_the_belief_on_a_tiny_map(bumps_map, belief_settings):
+    """Leave-one-out with the belief (its queries held out of the map's surface, fold by fold)
+    beside CTI-ICP-1: both localize the bumps' presses, the belief at least as well, with a
+    probability for each."""
+    results = evaluate_localization(jax.random.key(0), bumps_map, ("belief", "cti-icp-1"),
+                                    symmetries=jaxlie.SE3.identity((1,)), pad_to_multiple=1,
+                                    belief_settings=belief_settings, folds=3, chunk_size=4)
+    belief, icp = results["belief"], results["cti-icp-1"]
+    for errors in (belief, icp):
+        assert errors.queries.tolist() == list(range(25)) and np.all(np.isfinite(errors.rmse))
+        np.testing.assert_allclose(errors.symmetric_rmse, errors.rmse, rtol=1e-5, atol=1e-3)  # the identity alone
+        assert errors.summary()["queries"] == 25
+    assert np.all(belief.imprint_index == -1) and np.all(np.isnan(icp.probability))
+    assert np.all((belief.probability >= 0.0) & (belief.probability <= 1.0 + 1e-6))
+    assert np.median(belief.rmse) < 0.5 and np.median(belief.rmse) <= np.median(icp.rmse) + 0.05
+    # The belief is confident where it is right: a query off by more than 2 mm never holds P > 0.9.
+    assert not np.any((belief.rmse > 2.0) & (belief.probability > 0.9))

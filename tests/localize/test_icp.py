@@ -7,20 +7,22 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from tactojax.localize import IcpSettings, LocalizationMap, Query, icp, query_points
+from tactojax.localize import IcpSettings, Touch
 from tactojax.localize._evaluate import cloud_rmse
+from tactojax.localize._icp import icp
+from tactojax.localize._points import contact_points
 
 CANDIDATES = jnp.array([6, 7, 8, 11, 12, 13, 16, 17])
-"""The map imprints around the object origin (the query lies among them)."""
+"""The map imprints around the object origin (the touch lies among them)."""
 
 _icp = jax.jit(icp, static_argnums=6)
 """One compilation per setting, shared by the tests."""
 SETTINGS = {solver: IcpSettings(iterations=30, solver=solver) for solver in ("gauss-newton", "levenberg-marquardt")}
 
 
-def _query(synthetic, T_true):
+def _touch(synthetic, T_true):
     heightmap, mask = synthetic.render(synthetic.bumps, T_true)
-    return Query(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask), feature=jnp.zeros(48),
+    return Touch(heightmap=jnp.asarray(heightmap), mask=jnp.asarray(mask), feature=jnp.zeros(48),
                  opening=jnp.float32(20.0))
 
 
@@ -31,10 +33,10 @@ def _perturb(T, translation, rotation_deg):
 
 
 @pytest.fixture(scope="module")
-def problem(bumps_map, synthetic):
-    view = LocalizationMap.from_tactile_map(bumps_map)
+def problem(bumps_view, synthetic):
+    view = bumps_view
     T_true = synthetic.sensor_pose(1.3, -0.7, 5.0)  # between the map's presses
-    points, valid = query_points(_query(synthetic, T_true), view.mm_per_px, 128)
+    points, valid = contact_points(_touch(synthetic, T_true), view.mm_per_px, 128)
     return view, T_true, points, valid
 
 
@@ -90,12 +92,12 @@ def test_no_points_or_no_candidates_fail_without_nan(problem):
     np.testing.assert_allclose(np.asarray(estimate.T_object_sensor.wxyz_xyz), np.asarray(far.wxyz_xyz), atol=1e-6)
 
 
-def test_gradient_of_the_pose_with_respect_to_the_query_heightmap(bumps_map, synthetic):
+def test_gradient_of_the_pose_with_respect_to_the_touch_heightmap(bumps_view, synthetic):
     with jax.enable_x64(True):
         view = jax.tree.map(lambda x: x.astype(jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x,
-                            LocalizationMap.from_tactile_map(bumps_map))
+                            bumps_view)
         T_true = jaxlie.SE3(synthetic.sensor_pose(1.3, -0.7, 5.0).wxyz_xyz.astype(jnp.float64))
-        query = _query(synthetic, T_true)
+        touch = _touch(synthetic, T_true)
         start = jaxlie.SE3(_perturb(T_true, (0.4, -0.3, 0.2), (1.0, -1.0, 2.0)).wxyz_xyz.astype(jnp.float64))
         # Smooth settings: no trimming, no freezing (a finite difference must not change the
         # set of used points or the iteration that converges).
@@ -103,16 +105,15 @@ def test_gradient_of_the_pose_with_respect_to_the_query_heightmap(bumps_map, syn
 
         @jax.jit  # the map is an argument, not a constant folded into the compiled program
         def pose_in(view, heightmap):
-            q = query.replace(heightmap=heightmap)
-            points, valid = query_points(q, view.mm_per_px, 48)
+            points, valid = contact_points(touch.replace(heightmap=heightmap), view.mm_per_px, 48)
             estimate = icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, start, settings)
             return estimate.T_object_sensor.log()
 
         pose = lambda heightmap: pose_in(view, heightmap)  # noqa: E731
-        heightmap = query.heightmap.astype(jnp.float64)
+        heightmap = touch.heightmap.astype(jnp.float64)
         check_grads(pose, (heightmap,), order=1, modes=["rev"], eps=1e-5, atol=1e-4, rtol=1e-3)
         # Raising the whole patch by 0.1 mm moves the estimate by about 0.1 mm along the sensor z.
-        moved = pose(heightmap + 0.1 * query.mask)
+        moved = pose(heightmap + 0.1 * touch.mask)
         T0, T1 = jaxlie.SE3.exp(pose(heightmap)), jaxlie.SE3.exp(moved)
         shift = (T0.inverse() @ T1).translation()
         np.testing.assert_allclose(np.asarray(shift), [0.0, 0.0, 0.1], atol=0.02)

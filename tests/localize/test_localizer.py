@@ -1,70 +1,228 @@
-"""The live Localizer against the same touch run stage by stage through the public API."""
+"""The live loop. The Localizer: a settled grasp updates the belief once, as ``localize`` does
+stage by stage; grasps fuse by the kinematics; nothing recompiles; bad frames are clear errors.
+The Tracker: it starts from the belief of a settled grasp, then follows; contact lost ends the
+track and the belief. (One module: both share the programs of one session fixture.)"""
 
-import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 import pytest
 
 from tactojax._compilation import CompilationCounter
-from tactojax.features import encode_image, encode_images
-from tactojax.io import load_encoder
-from tactojax.localize import Localizer, MapLibrary, Query, identify, localize
+from tactojax.features import encode_image
+from tactojax.geometry import sensor_pose
+from tactojax.localize import Touch, localize
+from tactojax.localize._evaluate import pose_errors
 from tactojax.mapping import observed_contact
 from tactojax.shape import predict
 
+T_WORLD_OBJECT = jaxlie.SE3.exp(jnp.array([120.0, -40.0, 210.0, 0.1, -0.3, 0.7]))
+"""Where the object stands in the robot's frame during the grasps."""
+
 
 @pytest.fixture(scope="module")
-def live(cylinder_map, gum_box_map, lookup_model, tiny_encoder_path):
-    encoder = load_encoder(tiny_encoder_path)
-    maps = [m.with_features(encode_images(encoder, m.images)) for m in (cylinder_map, gum_box_map)]
-    return Localizer(maps, lookup_model, encoder, method="cti-icp-2"), maps, encoder
+def live(live_tracker):
+    tracker, maps, encoder = live_tracker
+    return tracker.localizer, maps, encoder
 
 
-def stage_by_stage(maps, model, encoder, image, opening):
-    pixels = jnp.asarray(image, jnp.float32) / 255.0
-    heightmap, mask = predict(model, pixels)
-    mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
-    feature = encode_image(encoder, image)
-    chosen, _ = identify(MapLibrary.from_maps(maps), feature, jnp.float32(opening))
-    query = Query(heightmap=heightmap, mask=mask, feature=feature, opening=jnp.float32(opening))
-    return int(chosen), localize(jax.random.key(0), maps[int(chosen)], query, method="cti-icp-2")
+def _background(model):
+    return np.round(np.asarray(model.background) * 255).astype(np.uint8)
 
 
-def test_live_localizer_matches_the_stage_by_stage_pipeline(live, lookup_model):
-    localizer, maps, encoder = live
-    for tactile_map in maps:
-        for index in np.flatnonzero(np.asarray(tactile_map.imprint_valid))[:3]:
-            image, opening = np.asarray(tactile_map.images[index]), float(tactile_map.openings[index])
-            estimate = localizer(image, opening)
-            chosen, reference = stage_by_stage(maps, lookup_model, encoder, image, opening)
-            assert estimate.object_id == maps[chosen].object_id
-            np.testing.assert_allclose(np.asarray(estimate.T_object_sensor.wxyz_xyz),
-                                       np.asarray(reference.T_object_sensor.wxyz_xyz), atol=2e-3)
-            assert estimate.converged == (bool(reference.converged) and estimate.contact)
-            assert 0.0 <= estimate.confidence <= 1.0 and estimate.latency_s > 0.0
+def _grasp_indices(tactile_map, count):
+    """``count`` imprints spread over the map, for successive grasps."""
+    valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+    return valid[np.linspace(0, len(valid) - 1, count + 2).astype(int)[1:-1]]
 
 
-def test_live_localizer_never_recompiles_and_rejects_bad_frames(live, cylinder_map):
-    localizer, _, _ = live
-    image = np.asarray(cylinder_map.images[0])
+def _symmetric_error(view, tactile_map, index, T_estimate, T_true):
+    """The paper's RMSE of the imprint's cloud at the estimated and the true pose, up to symmetry, mm."""
+    return float(pose_errors(tactile_map.points[index], tactile_map.valid[index], T_true, T_estimate,
+                             view.symmetries)["symmetric_rmse"])
+
+
+def _touches(belief) -> int:
+    """How many touches a belief holds (NumPy: nothing to compile)."""
+    return int(np.sum(np.asarray(belief.touch_valid)))
+
+
+def test_grasps_fuse_resets_and_no_contact_never_recompile(live, lookup_model, grasp_frames):
+    """From the first frame after start-up (this module's first test): the frames of three
+    grasps, releases, a reset and a forced fusion compile nothing (everything else, the frames
+    and the errors, is made outside the counted block)."""
+    localizer, maps, _ = live
+    settle = localizer.live.settle_frames
+    background = _background(lookup_model)
+    indices = [int(i) for i in _grasp_indices(maps[1], 3)]
+    grasps = [grasp_frames(maps[1], index, T_WORLD_OBJECT) for index in indices]
+    localizer.reset()
+    settled, released, touches = [], [], []
     with CompilationCounter() as compiles:
-        for opening in (30.0, 31.5, 60.0):
-            localizer(image, opening)
+        for image, opening, T_world_gripper, _ in grasps:
+            estimates = [localizer(image, opening, T_world_gripper) for _ in range(settle + 1)]
+            settled.append(estimates)
+            released.append(localizer(background, opening, T_world_gripper))  # the gripper opens
+            touches.append([_touches(b) for b in localizer.beliefs])
+        # The object is moved: forget it, and start again from one grasp.
+        localizer.reset()
+        after_reset = (localizer.grasps, [_touches(b) for b in localizer.beliefs])
+        image, opening, T_world_gripper, _ = grasps[0]
+        fused = localizer.fuse(image, opening, T_world_gripper)  # without waiting for it to settle
+        again = [localizer(image, opening, T_world_gripper) for _ in range(settle + 1)]
     assert compiles.messages == []
-    assert localizer.kernels > 0  # one compiled program per touch, its kernels counted
+    for g, estimates in enumerate(settled):  # each grasp updates the belief once, when it settles
+        assert [e.updated for e in estimates] == [False] * (settle - 1) + [True, False]
+        assert all(e.object_id == maps[1].object_id and e.grasps == g + 1 for e in estimates[settle - 1:])
+        assert not released[g].contact and not released[g].updated
+        assert released[g].T_world_object is not None  # the belief stands between grasps
+        assert touches[g] == [min(g + 1, localizer.settings.max_touches)] * 2
+    assert after_reset == (0, [0, 0])
+    assert fused.updated and fused.grasps == 1 and not any(e.updated for e in again)
+    errors = [_symmetric_error(localizer.views[1], maps[1], index, estimates[settle - 1].T_object_sensor, T_true)
+              for index, estimates, (_, _, _, T_true) in zip(indices, settled, grasps)]
+    assert max(errors) < 2.0, errors
+
+
+def test_a_settled_grasp_updates_the_belief_once_as_localize_does(live, lookup_model, grasp_frames):
+    localizer, maps, encoder = live
+    settle = localizer.live.settle_frames
+    index = int(_grasp_indices(maps[1], 1)[0])
+    image, opening, T_world_gripper, T_true = grasp_frames(maps[1], index, T_WORLD_OBJECT)
+    localizer.reset()
+    estimates = [localizer(image, opening, T_world_gripper) for _ in range(settle + 2)]
+    assert [e.updated for e in estimates] == [False] * (settle - 1) + [True, False, False]
+    assert [e.grasps for e in estimates] == [0] * (settle - 1) + [1, 1, 1]
+    assert all(e.contact for e in estimates)
+    assert estimates[0].object_id is None and estimates[0].T_world_object is None
+    assert [_touches(b) for b in localizer.beliefs] == [1, 1]  # every map's belief, once
+    estimate = estimates[settle - 1]
+    assert estimate.object_id == maps[1].object_id and estimate.object_probabilities[maps[1].object_id] > 0.5
+    assert sum(estimate.object_probabilities.values()) == pytest.approx(1.0)
+
+    # Stage by stage: shape model, contact, encoder, kinematics, then localize() on the map.
+    pixels = jnp.asarray(image, jnp.float32) / 255.0
+    heightmap, mask = predict(lookup_model, pixels)
+    mask = observed_contact(pixels, lookup_model.background, mask, lookup_model.mm_per_px)
+    touch = Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=jnp.float32(opening))
+    T_world_sensor = sensor_pose(T_world_gripper, jnp.float32(opening))
+    view = localizer.views[1]
+    reference = localize(view, touch, T_world_sensor, settings=localizer.settings)
+    belief = localizer.beliefs[1]
+    np.testing.assert_allclose(np.asarray(belief.log_weights), np.asarray(reference.log_weights), atol=1e-3)
+    np.testing.assert_allclose(np.asarray(belief.T_object_reference.wxyz_xyz),
+                               np.asarray(reference.T_object_reference.wxyz_xyz), atol=2e-3)
+    np.testing.assert_allclose(np.asarray(estimate.T_world_object.wxyz_xyz),
+                               np.asarray(reference.T_world_object.wxyz_xyz), atol=2e-3)
+    np.testing.assert_allclose(np.asarray(estimate.T_object_sensor.wxyz_xyz),
+                               np.asarray(reference.sensor_pose(T_world_sensor).wxyz_xyz), atol=2e-3)
+    assert estimate.probability_within == pytest.approx(float(reference.probability_within()), abs=1e-4)
+    assert estimate.modes and estimate.modes[0][1] <= 1.0 + 1e-6
+    # ...and it found the touch (the imprint is in the map).
+    assert _symmetric_error(view, maps[1], index, estimate.T_object_sensor, T_true) < 1.0
+    assert estimate.as_dict()["grasps"] == 1 and estimate.as_dict()["T_world_object_wxyz_xyz"] is not None
+
+
+def test_grasps_without_gripper_poses_start_over(live, grasp_frames):
+    localizer, maps, _ = live
+    localizer.reset()
+    for index in _grasp_indices(maps[1], 2):
+        image, opening, _, _ = grasp_frames(maps[1], int(index), T_WORLD_OBJECT)
+        estimate = localizer.fuse(image, opening)
+        assert estimate.grasps == 1 and estimate.T_object_sensor is not None
+        assert [_touches(b) for b in localizer.beliefs] == [1, 1]  # not fused: no kinematics
+
+
+def test_bad_frames_are_clear_errors(live, grasp_frames):
+    localizer, maps, _ = live
+    image, opening, T_world_gripper, _ = grasp_frames(maps[0], int(_grasp_indices(maps[0], 1)[0]), T_WORLD_OBJECT)
+    localizer.reset()
     with pytest.raises(ValueError, match="uint8 RGB frames"):
-        localizer(image[:-1], 30.0)
+        localizer(image[:-1], opening, T_world_gripper)
     with pytest.raises(ValueError, match="uint8 RGB frames"):
-        localizer(image.astype(np.float32), 30.0)
-    with pytest.raises(ValueError, match="opening"):
-        localizer(image, float("nan"))
+        localizer(image.astype(np.float32), opening, T_world_gripper)
+    with pytest.raises(ValueError, match="second_image"):
+        localizer(image, opening, T_world_gripper, second_image=image[:, :-1])
+    for bad in (float("nan"), -3.0):
+        with pytest.raises(ValueError, match="opening"):
+            localizer(image, bad, T_world_gripper)
+    for bad in (np.zeros(6, np.float32), jaxlie.SE3(jnp.full(7, jnp.nan)), T_world_gripper.wxyz_xyz[None]):
+        with pytest.raises(ValueError, match="gripper pose"):
+            localizer(image, opening, bad)
+    assert localizer.grasps == 0 and all(_touches(b) == 0 for b in localizer.beliefs)
 
 
 def test_a_frame_without_contact_has_no_estimate(live, lookup_model):
     localizer, _, _ = live
-    background = np.round(np.asarray(lookup_model.background) * 255).astype(np.uint8)
+    localizer.reset()
+    background = _background(lookup_model)
     for frame in (background, np.zeros_like(background)):  # nothing touching; a black frame
-        estimate = localizer(frame, 40.0)
+        for _ in range(localizer.live.settle_frames + 1):
+            estimate = localizer(frame, 40.0)
         assert not estimate.contact and estimate.T_object_sensor is None and estimate.object_id is None
-        assert estimate.confidence == 0.0 and not estimate.converged and estimate.latency_s > 0
+        assert estimate.probability_within == 0.0 and not estimate.updated and estimate.latency_s > 0
         assert estimate.as_dict()["T_object_sensor_wxyz_xyz"] is None
+        assert localizer.fuse(frame, 40.0).grasps == 0
+
+
+@pytest.fixture(scope="module")
+def tracker(live_tracker):
+    return live_tracker
+
+
+def test_tracker_starts_from_the_belief_of_a_settled_grasp_then_follows(tracker, lookup_model, grasp_frames):
+    tracker, maps, _ = tracker
+    localizer = tracker.localizer
+    settle = localizer.live.settle_frames
+    index = int(np.flatnonzero(np.asarray(maps[1].imprint_valid))[len(maps[1]) // 2])
+    image, opening, T_world_gripper, T_true = grasp_frames(maps[1], index, T_WORLD_OBJECT)
+    background = np.round(np.asarray(lookup_model.background) * 255).astype(np.uint8)
+
+    tracker.reset()
+    relocalizations, tracked_frames = tracker.relocalizations, tracker.tracked_frames
+    with CompilationCounter() as compiles:
+        settling = [tracker(image, opening, T_world_gripper) for _ in range(settle)]
+        assert [e.updated for e in settling] == [False] * (settle - 1) + [True]
+        assert not any(e.tracked for e in settling) and tracker.following
+        first = settling[-1]  # the belief's best pose, from the localizer
+        assert first.object_id == maps[1].object_id and localizer.grasps == 1
+        assert tracker.relocalizations == relocalizations + 1
+        belief = localizer.beliefs[1]
+        followed = [tracker(image, opening, T_world_gripper) for _ in range(2)]  # the same touch: followed
+        gone = tracker(background, opening, T_world_gripper)  # contact lost: no estimate, the track ends
+        again = tracker(image, opening, T_world_gripper)  # the next touch starts over, from the localizer
+    assert compiles.messages == []
+    belief_pose = belief.sensor_pose(sensor_pose(T_world_gripper, jnp.float32(opening)))
+    np.testing.assert_allclose(np.asarray(first.T_object_sensor.wxyz_xyz), np.asarray(belief_pose.wxyz_xyz), atol=2e-3)
+    error = pose_errors(maps[1].points[index], maps[1].valid[index], T_true, followed[-1].T_object_sensor,
+                        localizer.views[1].symmetries)["symmetric_rmse"]
+    assert float(error) < 1.0
+    for estimate in followed:
+        assert estimate.tracked and estimate.object_id == first.object_id and not estimate.updated
+        assert estimate.probability_within == first.probability_within
+        assert estimate.object_probabilities == first.object_probabilities
+        moved = np.linalg.norm(np.asarray(estimate.T_object_sensor.translation() - first.T_object_sensor.translation()))
+        assert moved < 0.5 and estimate.residual_mm < tracker.tracking.max_residual_mm
+        # The object in the world: the followed sensor pose and the gripper's kinematics.
+        np.testing.assert_allclose(np.asarray(estimate.T_world_object.translation()),
+                                   np.asarray(first.T_world_object.translation()), atol=0.5)
+    assert tracker.tracked_frames == tracked_frames + 2
+    assert not gone.contact and gone.T_object_sensor is None and not tracker.following
+    assert localizer.grasps == 0 and all(_touches(b) == 0 for b in localizer.beliefs)  # the belief is reset
+    assert not again.tracked and not again.updated and again.T_object_sensor is None  # settling anew
+    assert followed[0].as_dict()["tracked"] is True
+
+
+def test_tracker_starts_from_a_given_pose_and_checks_it(tracker, grasp_frames):
+    tracker, maps, _ = tracker
+    index = int(np.flatnonzero(np.asarray(maps[0].imprint_valid))[0])
+    image, opening, T_world_gripper, T_true = grasp_frames(maps[0], index, T_WORLD_OBJECT)
+    tracker.reset()
+    tracker.start(maps[0].object_id, T_true)
+    estimate = tracker(image, opening, T_world_gripper)
+    assert estimate.tracked and estimate.object_id == maps[0].object_id
+    assert np.linalg.norm(np.asarray(estimate.T_object_sensor.translation() - T_true.translation())) < 1.0
+    with pytest.raises(ValueError, match="no map of 'banana'"):
+        tracker.start("banana", T_true)
+    with pytest.raises(ValueError, match="finite"):
+        tracker.start(maps[0].object_id, jaxlie.SE3(jnp.full(7, jnp.nan)))

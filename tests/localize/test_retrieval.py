@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactojax.localize import closest_imprints, cosine_similarities
+from tactojax.localize._retrieval import closest_imprints, cosine_similarities
 
 
 def _brute_force(features, openings, valid, query, opening, n, threshold, exclude):
