@@ -48,7 +48,7 @@ from tactojax.geometry import sensor_pose
 from tactojax.io import (DEFAULT_ENCODER, load_test_episodes, open_dataset, read_grasps, read_test_grasps,
                          resolve_encoder, resolve_shape_model, simulate_to_dataset)
 from tactojax.localize import LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize
-from tactojax.localize._localizer import LiveSettings  # (the settings type of Localizer's ``live``)
+from tactojax.localize import LiveSettings
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim

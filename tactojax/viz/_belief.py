@@ -73,7 +73,9 @@ def belief_figure(examples: dict[str, dict], curves: dict[str, dict], *, max_poi
     names = list(examples)
     steps = sorted(next(iter(examples.values()))["after"])
     figure = Figure(figsize=(3.4 * len(names) + 4.4, 6.8))
-    grid = figure.add_gridspec(len(steps), len(names) + 2, width_ratios=[1.0] * len(names) + [0.05, 1.1])
+    # The colour bar's ticks and the curves' y label need room between them (wspace).
+    grid = figure.add_gridspec(len(steps), len(names) + 2, width_ratios=[1.0] * len(names) + [0.05, 1.1],
+                               wspace=0.45)
     rng = np.random.default_rng(seed)
     for column, name in enumerate(names):
         example = examples[name]
