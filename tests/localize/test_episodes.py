@@ -36,6 +36,7 @@ def episodes(synthetic):
         T_object_sensor=jaxlie.SE3(stack(poses)), cloud_mean=stack(means), cloud_covariance=stack(covariances))
 
 
+@pytest.mark.slow  # three programs compiled for one check (~2 min); tests/cli/test_belief_cli.py runs the evaluation
 def test_single_touches_fused_episodes_and_calibration_records_agree(bumps_view, episodes, belief_settings):
     single, *fused = evaluate_new_grasps(bumps_view, episodes, ("belief",), settings=belief_settings)
     assert (single.grasps, single.fused) == (1, False) and [f.grasps for f in fused] == [1, 2]
