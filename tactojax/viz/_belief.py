@@ -73,9 +73,8 @@ def belief_figure(examples: dict[str, dict], curves: dict[str, dict], *, max_poi
     names = list(examples)
     steps = sorted(next(iter(examples.values()))["after"])
     figure = Figure(figsize=(3.4 * len(names) + 4.4, 6.8))
-    # The colour bar's ticks and the curves' y label need room between them (wspace).
     grid = figure.add_gridspec(len(steps), len(names) + 2, width_ratios=[1.0] * len(names) + [0.05, 1.1],
-                               wspace=0.45)
+                               wspace=0.45, hspace=0.45)
     rng = np.random.default_rng(seed)
     for column, name in enumerate(names):
         example = examples[name]
@@ -115,6 +114,8 @@ def belief_figure(examples: dict[str, dict], curves: dict[str, dict], *, max_poi
     axis.set_xticks(sorted({g for curve in curves.values() for g in curve["grasps"]}))
     axis.set_xlabel("grasps fused (both fingers)")
     axis.set_ylabel("share of episodes within 2 mm")
+    axis.yaxis.set_label_position("right")  # clear of the colour bar's ticks on its left
+    axis.yaxis.tick_right()
     axis.set_title("within 2 mm: observed (solid)\nagainst the belief's mean P (dashed)", fontsize=9)
     axis.legend(fontsize=7)
     return figure
