@@ -1,20 +1,8 @@
-"""Pose beliefs as the commands print and write them: P(object) over maps, the modes, poses as numbers."""
+"""Pose beliefs as the commands print and write them: the modes, poses as numbers."""
 
 from __future__ import annotations
 
 import numpy as np
-
-
-def object_probabilities(log_evidence) -> np.ndarray:
-    """P(object) over maps whose beliefs share one calibration: the softmax of their log
-    evidence (a uniform prior; as :func:`~tactojax.localize.identify_episodes`). All zero when
-    no map explains the touches at all."""
-    log_evidence = np.asarray(log_evidence, np.float64)
-    finite = np.isfinite(log_evidence)
-    if not finite.any():
-        return np.zeros(len(log_evidence))
-    weights = np.where(finite, np.exp(log_evidence - log_evidence[finite].max()), 0.0)
-    return weights / weights.sum()
 
 
 def wxyz_xyz(T) -> list[float]:

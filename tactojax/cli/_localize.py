@@ -113,17 +113,15 @@ def observe_image(model, image, path: str):
     image does not fit the model or shows no contact."""
     import jax.numpy as jnp
 
-    from tactojax.mapping import observed_contact, shows_contact
-    from tactojax.shape import check_image, predict
+    from tactojax.localize._localizer import observe
+    from tactojax.shape import check_image
 
     try:
         check_image(model, image)
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
-    pixels = jnp.asarray(image, jnp.float32) / 255.0
-    heightmap, mask = predict(model, pixels)
-    mask = observed_contact(pixels, model.background, mask, model.mm_per_px)
-    if not bool(shows_contact(pixels, model.background, mask)):
+    _, heightmap, mask, contact = observe(model, jnp.asarray(image))  # what the live loop sees of a frame
+    if not bool(contact):
         raise ValueError(f"{path} shows no contact (a dark frame, or no observed pixel above the shape model's "
                          "contact threshold): leave it out; there is nothing to localize in it")
     return heightmap, mask
@@ -161,10 +159,11 @@ def run(args) -> int:
 def _run_belief(args, map_paths, maps, image_paths, openings, poses, observed, second) -> int:
     import numpy as np
 
-    from tactojax.cli._belief import belief_summary, object_probabilities, position_and_angles
+    from tactojax.cli._belief import belief_summary, position_and_angles
     from tactojax.cli._maps import localization_views
     from tactojax.geometry import opposite_sensor_pose, sensor_pose
     from tactojax.localize import Touch, localize
+    from tactojax.localize._identify_episodes import object_probabilities
 
     touches, T_world_sensor = [], []
     for g, (opening, T_world_gripper) in enumerate(zip(openings, poses)):

@@ -24,10 +24,11 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from tqdm.auto import tqdm
 
+from tactojax.localize._baselines import baseline_estimate, estimate_pose, parse_method
 from tactojax.localize._correspondences import matvec, valid_centroid
 from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
-from tactojax.localize._points import POINTS_PER_TOUCH
+from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.localize._surface import build_map_surface
 from tactojax.mapping import TactileMap
@@ -128,9 +129,6 @@ def oracle_imprints(
 @functools.partial(jax.jit, static_argnames=("method", "settings", "points_per_touch", "oracle"))
 def _baseline_chunk(keys, view, index, clouds, cloud_valid, T_true, max_opening_difference_mm, method, settings,
                     points_per_touch, oracle):
-    from tactojax.localize._baselines import baseline_estimate, estimate_pose  # noqa: F401
-    from tactojax.localize._points import contact_points
-
     def one(key, exclude, cloud, valid, T):
         touch = map_touch(view, exclude)
         if oracle and method.kind != "random":
@@ -150,7 +148,7 @@ def _baseline_chunk(keys, view, index, clouds, cloud_valid, T_true, max_opening_
 
 @functools.partial(jax.jit, static_argnames=("settings",))
 def _belief_chunk(view, index, clouds, cloud_valid, T_true, settings):
-    from tactojax.localize._belief import empty_belief, update_belief
+    from tactojax.localize._belief import empty_belief, update_belief  # (which imports this module's metric)
 
     def one(args):
         exclude, cloud, valid, T = args
@@ -257,8 +255,7 @@ def evaluate_localization(
     Returns:
         ``{method name: LocalizationErrors}``.
     """
-    from tactojax.localize._baselines import parse_method
-    from tactojax.localize._belief import BeliefSettings
+    from tactojax.localize._belief import BeliefSettings  # (which imports this module's metric)
 
     belief_settings = BeliefSettings() if belief_settings is None else belief_settings
     view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration, symmetries=symmetries)

@@ -71,9 +71,17 @@ def identify_episodes(
             log_evidence[e, :, m] = np.asarray(_episode_evidence(view, episode, fingers, settings))
             steps.update()
     steps.close()
+    probabilities = object_probabilities(log_evidence)
+    return np.where(probabilities.sum(axis=-1, keepdims=True) > 0, probabilities, 1.0 / len(maps))
+
+
+def object_probabilities(log_evidence) -> np.ndarray:
+    """(..., M) P(object) over M maps whose beliefs share one calibration: the softmax of their
+    log evidence over the last axis (a uniform prior). All zero where no map explains the
+    touches at all (every log evidence -inf)."""
+    log_evidence = np.asarray(log_evidence, np.float64)
     finite = np.isfinite(log_evidence)
-    shifted = np.where(finite, log_evidence - np.max(np.where(finite, log_evidence, -1e30), axis=-1, keepdims=True),
-                       -np.inf)
-    weights = np.exp(shifted)
+    top = np.max(np.where(finite, log_evidence, -np.inf), axis=-1, keepdims=True)
+    weights = np.where(finite, np.exp(log_evidence - np.where(np.isfinite(top), top, 0.0)), 0.0)
     total = weights.sum(axis=-1, keepdims=True)
-    return np.where(total > 0, weights / np.maximum(total, 1e-300), 1.0 / len(maps))
+    return np.where(total > 0, weights / np.maximum(total, 1e-300), 0.0)

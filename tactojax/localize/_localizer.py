@@ -25,6 +25,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -36,10 +37,28 @@ from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
-from tactojax.localize._identify_episodes import shared_calibration
+from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
+
+
+class Frame(NamedTuple):
+    """One checked and observed camera frame (:meth:`Localizer.observe_frame`)."""
+
+    image: np.ndarray
+    """(H, W, 3) uint8, the sensor finger's."""
+    second_image: np.ndarray | None
+    """The opposite finger's, if it has a sensor."""
+    opening_mm: float
+    gripper: np.ndarray | None
+    """The gripper's pose, (7,) wxyz_xyz, mm (None: not given)."""
+    heightmap: jax.Array
+    """(H, W) predicted heightmap, mm."""
+    mask: jax.Array
+    """(H, W) contact mask."""
+    contact: bool
+    """Whether the frame shows a touch."""
 
 
 @dataclass(frozen=True)
@@ -293,22 +312,7 @@ class Localizer:
             second_image: the opposite finger's frame at the same instant, if it has a sensor.
         """
         start = time.perf_counter()
-        image = check_frame(image, opening_mm, self.image_shape)
-        if second_image is not None:
-            second_image = check_frame(second_image, opening_mm, self.image_shape, "second_image")
-        gripper = check_gripper_pose(T_world_gripper)
-        heightmap, mask, contact = self._observe(*self._model, image)
-        contact = bool(contact)
-        updated = False
-        if not contact:
-            self._previous, self._at_rest, self._grasp_used = None, 0, False
-        else:
-            self._at_rest = self._at_rest + 1 if self._still(gripper, opening_mm) else 1
-            self._previous = (gripper, opening_mm)
-            if self._at_rest >= self.live.settle_frames and not self._grasp_used:
-                self._fuse_grasp(image, heightmap, mask, opening_mm, gripper, second_image)
-                self._grasp_used = updated = True
-        return self._estimate(contact, updated, gripper, opening_mm, time.perf_counter() - start)
+        return self.advance(self.observe_frame(image, opening_mm, T_world_gripper, second_image), start)
 
     def fuse(self, image: np.ndarray, opening_mm: float, T_world_gripper: jaxlie.SE3 | None = None,
              second_image: np.ndarray | None = None) -> LiveEstimate:
@@ -316,15 +320,40 @@ class Localizer:
         the robot knows its grasp is done); a frame without contact changes nothing. The same
         arguments as a call."""
         start = time.perf_counter()
+        return self.fuse_frame(self.observe_frame(image, opening_mm, T_world_gripper, second_image), start)
+
+    def observe_frame(self, image: np.ndarray, opening_mm: float, T_world_gripper: jaxlie.SE3 | None = None,
+                      second_image: np.ndarray | None = None) -> Frame:
+        """One frame checked (ValueError for a bad image, opening or pose) and observed: its
+        predicted heightmap and contact mask, and whether it shows a touch (one compiled program)."""
         image = check_frame(image, opening_mm, self.image_shape)
         if second_image is not None:
             second_image = check_frame(second_image, opening_mm, self.image_shape, "second_image")
         gripper = check_gripper_pose(T_world_gripper)
         heightmap, mask, contact = self._observe(*self._model, image)
-        if bool(contact):
-            self._fuse_grasp(image, heightmap, mask, opening_mm, gripper, second_image)
-            self._previous, self._grasp_used = (gripper, opening_mm), True
-        return self._estimate(bool(contact), bool(contact), gripper, opening_mm, time.perf_counter() - start)
+        return Frame(image, second_image, opening_mm, gripper, heightmap, mask, bool(contact))
+
+    def advance(self, frame: Frame, start: float) -> LiveEstimate:
+        """A call's work on an observed frame (:meth:`observe_frame`): the grasp's settling, and
+        its update once it has settled. ``start``: when the frame arrived (``time.perf_counter``)."""
+        updated = False
+        if not frame.contact:
+            self._previous, self._at_rest, self._grasp_used = None, 0, False
+        else:
+            self._at_rest = self._at_rest + 1 if self._still(frame.gripper, frame.opening_mm) else 1
+            self._previous = (frame.gripper, frame.opening_mm)
+            if self._at_rest >= self.live.settle_frames and not self._grasp_used:
+                self._fuse_grasp(frame)
+                self._grasp_used = updated = True
+        return self._estimate(frame.contact, updated, frame.gripper, frame.opening_mm, time.perf_counter() - start)
+
+    def fuse_frame(self, frame: Frame, start: float) -> LiveEstimate:
+        """:meth:`fuse` on an observed frame (:meth:`observe_frame`)."""
+        if frame.contact:
+            self._fuse_grasp(frame)
+            self._previous, self._grasp_used = (frame.gripper, frame.opening_mm), True
+        return self._estimate(frame.contact, frame.contact, frame.gripper, frame.opening_mm,
+                              time.perf_counter() - start)
 
     def _still(self, gripper: np.ndarray | None, opening_mm: float) -> bool:
         """Whether the gripper is at rest since the previous contact frame."""
@@ -348,15 +377,17 @@ class Localizer:
             identity if T_world_object is None else T_world_object,
             identity if T_object_sensor is None else T_object_sensor))
 
-    def _fuse_grasp(self, image, heightmap, mask, opening_mm, gripper, second_image) -> None:
+    def _fuse_grasp(self, frame: Frame) -> None:
         """Update every map's belief with this grasp's touches (sensor finger, then the other)."""
+        image, second_image, opening_mm, gripper = frame.image, frame.second_image, frame.opening_mm, frame.gripper
         if gripper is None or not self._poses_known:  # grasps that cannot be related: start over
             if self.grasps:
                 self.reset()
             self._poses_known = gripper is not None
         opening = np.float32(opening_mm)
         T_world_sensor, T_world_opposite, _, _ = self._poses(gripper, opening)
-        touches = [(Touch(heightmap=heightmap, mask=mask, feature=self._encode(self._encoder, image), opening=opening),
+        touches = [(Touch(heightmap=frame.heightmap, mask=frame.mask, feature=self._encode(self._encoder, image),
+                          opening=opening),
                     T_world_sensor)]
         if second_image is not None:
             second_heightmap, second_mask, second_contact = self._observe(*self._model, second_image)
@@ -369,13 +400,10 @@ class Localizer:
                 self.beliefs[m] = update(view, self.beliefs[m], touch, jaxlie.SE3(T_world_touch))
         self.grasps += 1
         summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, self.beliefs)])
-        log_evidence = np.array([s[4] for s in summaries], np.float64)
-        finite = np.isfinite(log_evidence)
-        if not finite.any():
+        probabilities = object_probabilities([s[4] for s in summaries])
+        if not probabilities.any():  # no map explains the touches
             self._summary = None
             return
-        weights = np.where(finite, np.exp(log_evidence - log_evidence[finite].max()), 0.0)
-        probabilities = weights / weights.sum()
         chosen = int(np.argmax(probabilities))
         T_world_object, within, T_modes, mode_probability, _ = summaries[chosen]
         modes = tuple((jaxlie.SE3(np.asarray(T)), float(p)) for T, p in zip(T_modes, mode_probability) if p > 0)

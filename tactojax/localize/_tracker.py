@@ -49,7 +49,7 @@ from tactojax.features import Encoder
 from tactojax.localize._belief import BeliefSettings
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._icp import IcpSettings, icp
-from tactojax.localize._localizer import LiveEstimate, Localizer, LiveSettings, check_frame, check_gripper_pose
+from tactojax.localize._localizer import Frame, LiveEstimate, Localizer, LiveSettings, check_gripper_pose
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._pose import PoseEstimate
@@ -260,37 +260,33 @@ class Tracker:
                  second_image: np.ndarray | None = None) -> LiveEstimate:
         """Track (or localize) one frame; the arguments of :meth:`Localizer.__call__`."""
         start = time.perf_counter()
+        frame = self.localizer.observe_frame(image, opening_mm, T_world_gripper, second_image)
         if self._previous is None:
-            estimate = self.localizer(image, opening_mm, T_world_gripper, second_image)
+            estimate = self.localizer.advance(frame, start)
             if estimate.updated:
-                self._start_from_belief(image, estimate)
-            return dataclasses.replace(estimate, latency_s=time.perf_counter() - start)
-        image = check_frame(image, opening_mm, self.image_shape)
-        gripper = check_gripper_pose(T_world_gripper)
-        heightmap, mask, contact = self.localizer._observe(*self.localizer._model, image)
-        if not bool(contact):  # released: the track ends, the belief stays (the object stays put)
+                self._start_from_belief(estimate)
+            return estimate
+        if not frame.contact:  # released: the track ends, the belief stays (the object stays put)
             self._previous, self._before, self._unsupported = None, None, 0
-            estimate = self.localizer(image, opening_mm, T_world_gripper, second_image)
-            return dataclasses.replace(estimate, latency_s=time.perf_counter() - start)
+            return self.localizer.advance(frame, start)
         chosen, T_previous = self._previous
         T_before = self._before if self._before is not None else T_previous
-        touch = Touch(heightmap=heightmap, mask=mask, feature=_NO_FEATURE, opening=_NO_OPENING)
+        touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
         tracked, matched, informative = jax.device_get(self._track[chosen](
             self.localizer.views[chosen], touch, jaxlie.SE3(T_previous), jaxlie.SE3(T_before)))
         lost = informative & ((self._unsupported >= self.tracking.max_unsupported_frames)
                               | (matched & (tracked.score > self.tracking.max_residual_mm)))
         self._unsupported = 0 if matched else self._unsupported + int(informative)
         if lost:
-            relocalized = self._relocalize(image, heightmap, mask, opening_mm, gripper, second_image, chosen,
-                                           tracked, bool(matched))
+            relocalized = self._relocalize(frame, tracked, bool(matched), start)
             if relocalized is not None:
                 return relocalized
         self.tracked_frames += 1
         pose = np.asarray(tracked.T_object_sensor.wxyz_xyz, np.float32)
         self._before, self._previous = T_previous, (chosen, pose)
-        return self._estimate(chosen, gripper, opening_mm, float(tracked.score), start)
+        return self._estimate(chosen, frame.gripper, frame.opening_mm, float(tracked.score), start)
 
-    def _start_from_belief(self, image: np.ndarray, estimate: LiveEstimate) -> None:
+    def _start_from_belief(self, estimate: LiveEstimate) -> None:
         """Follow from the belief's best pose of this frame's sensor (the grasp just fused)."""
         if estimate.object_id is None or estimate.T_object_sensor is None:
             return
@@ -300,16 +296,16 @@ class Tracker:
         self._before, self._unsupported = None, 0
         self._belief_numbers = (estimate.object_probabilities, estimate.probability_within)
 
-    def _relocalize(self, image, heightmap, mask, opening_mm, gripper, second_image, chosen, tracked, matched):
+    def _relocalize(self, frame: Frame, tracked: PoseEstimate, matched: bool, start: float) -> LiveEstimate | None:
         """A new belief from this frame; it replaces the lost track if it fits clearly better
         (registered from the belief's pose as a tracked frame is). None: the track stays."""
         self.localizer.reset()
-        estimate = self.localizer.fuse(image, opening_mm, gripper, second_image)
+        estimate = self.localizer.fuse_frame(frame, start)
         if estimate.T_object_sensor is None:
             return None
         new = self.object_ids.index(estimate.object_id)
         T_belief = np.asarray(estimate.T_object_sensor.wxyz_xyz, np.float32)
-        touch = Touch(heightmap=heightmap, mask=mask, feature=_NO_FEATURE, opening=_NO_OPENING)
+        touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
         fit, fit_matched, _ = jax.device_get(self._track[new](self.localizer.views[new], touch,
                                                               jaxlie.SE3(T_belief), jaxlie.SE3(T_belief)))
         better = not matched or float(selection_cost(fit)) + self.tracking.degraded_mm < float(selection_cost(tracked))
