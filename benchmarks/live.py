@@ -20,6 +20,12 @@ belief: the same numbers up to floating point).
 
     python benchmarks/live.py --json live.json
     python benchmarks/live.py --map scissors-cal.npz --test data/fresh-scissors --episodes 8
+    python benchmarks/live.py --map scissors-cal.npz --test data/fresh-scissors --episodes 32 --fingers 2
+
+With ``--fingers 2`` the opposite finger's frames are a second video read in step
+(``live_estimates(..., second_camera=...)``, ``tactojax localize-live --second-camera``), and
+every settled grasp updates the belief with both fingers, as ``eval-localization --test
+--fingers 2`` fuses them.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
-from tactojax.geometry import pixel_grid, sensor_pose
+from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
 from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, read_grasps, read_test_grasps, resolve_encoder,
                          resolve_shape_model, simulate_to_dataset, tactile_map_metadata)
@@ -138,6 +144,9 @@ def main() -> None:
     parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
     parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--episodes", type=int, default=8, help="episodes played (default 8)")
+    parser.add_argument("--fingers", type=int, choices=[1, 2], default=1,
+                        help="fingers with a sensor (2: the opposite finger's frames come from a second camera, "
+                             "and every grasp's update fuses both; the test set must record both)")
     parser.add_argument("--grasps", type=int, default=3, help="grasps per simulated episode (default 3)")
     parser.add_argument("--hold", type=int, default=2, help="frames at rest after a grasp settled (default 2)")
     parser.add_argument("--gap", type=int, default=2, help="frames without contact between grasps (default 2)")
@@ -152,15 +161,19 @@ def main() -> None:
     name = tactile_map.object_id
 
     test = Path(args.test) if args.test else simulated(
-        work, name, GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps, fingers=1),
-        f"grasps-e{args.episodes}-g{args.grasps}")
+        work, name, GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps, fingers=args.fingers),
+        f"grasps-e{args.episodes}-g{args.grasps}-f{args.fingers}")
     fields = ["image", "heightmap", "mask", "opening_mm", "T_world_gripper", "T_world_sensor", "T_world_object"]
     records = read_test_grasps(test, fields, object_id=name)
     grasps = int(np.sum((records["episode"] == records["episode"][0]) & (records["finger"] == 0)))
-    sensor_finger = records["finger"] == 0
-    records = {key: value[sensor_finger] for key, value in records.items()}
+    opposite = {key: value[records["finger"] == 1] for key, value in records.items()}
+    records = {key: value[records["finger"] == 0] for key, value in records.items()}
+    if args.fingers == 2 and len(opposite["image"]) != len(records["image"]):
+        raise SystemExit(f"--fingers 2: {test} does not record both fingers of every grasp "
+                         "(simulate it with --fingers 2)")
     episodes = min(args.episodes, len(records["image"]) // grasps)
     records = {key: value[:episodes * grasps] for key, value in records.items()}
+    opposite = {key: value[:episodes * grasps] for key, value in opposite.items()}
     T_world_object = jaxlie.SE3(jnp.asarray(records["T_world_object"]))
     truth = np.asarray((T_world_object.inverse() @ jaxlie.SE3(jnp.asarray(records["T_world_sensor"]))).wxyz_xyz)
     means, covariances = true_clouds(records["heightmap"], records["mask"], tactile_map.mm_per_px)
@@ -174,22 +187,27 @@ def main() -> None:
 
     # The frames: each grasp at rest (settle + hold), then released (gap), with the gripper's pose.
     background = np.round(np.asarray(model.background) * 255).astype(np.uint8)
-    frames, openings, poses, touch_of_frame = [], [], [], []
+    frames, opposite_frames, openings, poses, touch_of_frame = [], [], [], [], []
     for t in range(len(records["image"])):
         for k in range(settle + args.hold + args.gap):
             released = k >= settle + args.hold
             frames.append(background if released else records["image"][t])
+            if args.fingers == 2:
+                opposite_frames.append(background if released else opposite["image"][t])
             openings.append(float(records["opening_mm"][t]) + (RELEASED_MM if released else 0.0))
             poses.append(records["T_world_gripper"][t].astype(np.float32))
             touch_of_frame.append(t)
     video = write_video(work / f"{name}-grasps-e{episodes}-g{grasps}.mkv", np.stack(frames), fps=args.fps)
+    opposite_video = None if args.fingers == 1 else write_video(
+        work / f"{name}-grasps-e{episodes}-g{grasps}-opposite.mkv", np.stack(opposite_frames), fps=args.fps)
     frames_per_episode = grasps * (settle + args.hold + args.gap)
 
     statistics, updated_ms = LiveStatistics(), []
     live_errors, live_probability = np.full((episodes, grasps), np.nan), np.full((episodes, grasps), np.nan)
     next_opening = iter(openings).__next__  # frames come in order: one opening each
+    second_camera = None if opposite_video is None else OpenCVCamera(opposite_video, gelslim(scale=0.5))
     with OpenCVCamera(video, gelslim(scale=0.5)) as camera, CompilationCounter() as compiles:
-        for frame, estimate in live_estimates(camera, localizer, next_opening,
+        for frame, estimate in live_estimates(camera, localizer, next_opening, second_camera=second_camera,
                                               gripper_pose=lambda frame: jaxlie.SE3(poses[frame.index])):
             statistics.add(frame, estimate)
             t = touch_of_frame[frame.index]
@@ -201,6 +219,8 @@ def main() -> None:
                 live_probability[t // grasps, t % grasps] = estimate.probability_within
             if (frame.index + 1) % frames_per_episode == 0:
                 localizer.reset()  # the object is put down elsewhere
+    if second_camera is not None:
+        second_camera.close()
     statistics.recompilations = compiles.count
     for message in compiles.messages:
         print("recompiled:", message[:300])
@@ -216,6 +236,10 @@ def main() -> None:
             heightmap, mask = predict(model, pixels)
             return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
 
+        def observe_touch(image, opening):
+            heightmap, mask = observe(image)
+            return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=opening)
+
         errors, probability = np.full((episodes, grasps), np.nan), np.full((episodes, grasps), np.nan)
         seconds, skipped = [], 0
         for e in range(episodes):
@@ -223,13 +247,15 @@ def main() -> None:
             for g in range(grasps):
                 t = e * grasps + g
                 start = time.perf_counter()
-                heightmap, mask = observe(records["image"][t])
-                touch = Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, records["image"][t]),
-                              opening=jnp.float32(records["opening_mm"][t]))
-                T_world_sensor = sensor_pose(jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32)),
-                                             jnp.float32(records["opening_mm"][t]))
+                opening = jnp.float32(records["opening_mm"][t])
+                T_world_gripper = jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32))
+                T_world_sensor = sensor_pose(T_world_gripper, opening)
+                touches, T_world_touches = [observe_touch(records["image"][t], opening)], [T_world_sensor]
+                if args.fingers == 2:
+                    touches.append(observe_touch(opposite["image"][t], opening))
+                    T_world_touches.append(opposite_sensor_pose(T_world_gripper, opening))
                 try:
-                    belief = jax.block_until_ready(localize(view, touch, T_world_sensor, belief=belief,
+                    belief = jax.block_until_ready(localize(view, touches, T_world_touches, belief=belief,
                                                             settings=settings))
                 except ValueError:  # no contact in the episode's first grasp: nothing to localize yet
                     skipped += 1
@@ -246,7 +272,7 @@ def main() -> None:
     print(format_table(
         ["loop", "frames", "rate (Hz)", "latency median / p95 / max (ms)", "belief updates: median / max (ms)",
          "recompilations"],
-        [[f"live: {episodes} episodes x {grasps} grasps, each {settle}+{args.hold} frames at rest + {args.gap} "
+        [[f"live: {episodes} episodes x {grasps} grasps x {args.fingers} finger{'s' * (args.fingers > 1)}, each {settle}+{args.hold} frames at rest + {args.gap} "
           "released", live["frames"], f"{live['rate_hz']:.1f}",
           f"{live['latency_ms']['median']:.1f} / {live['latency_ms']['p95']:.1f} / {live['latency_ms']['max']:.1f}",
           f"{np.median(updated_ms):.1f} / {np.max(updated_ms):.1f}" if updated_ms else "-", live["recompilations"]]]))
@@ -265,7 +291,7 @@ def main() -> None:
     if args.json:
         write_json(args.json, {
             "object": name, "map_imprints": len(tactile_map), "test": str(test), "episodes": episodes,
-            "grasps_per_episode": grasps, "settle_frames": settle, "hold_frames": args.hold, "gap_frames": args.gap,
+            "grasps_per_episode": grasps, "fingers": args.fingers, "settle_frames": settle, "hold_frames": args.hold, "gap_frames": args.gap,
             "video": str(video), "calibrated": calibration is not None, "compile_s": localizer.compile_s,
             "live": live, "belief_update_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,
                                                "max": float(np.max(updated_ms)) if updated_ms else None},

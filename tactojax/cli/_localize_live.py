@@ -20,6 +20,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--camera", required=True,
                         help="camera device index, video file, or stream URL (frames must show the gel; "
                              "see --corners)")
+    parser.add_argument("--second-camera", metavar="SRC",
+                        help="the opposite finger's tactile camera, when it carries a sensor (same kinds of source "
+                             "and --corners as --camera): read in step with --camera, each grasp's belief "
+                             "update then fuses both fingers")
     parser.add_argument("--map", nargs="+", required=True, dest="maps", metavar="MAP", help="object maps (.npz)")
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--opening", type=float, help="fixed gripper opening, mm")
@@ -97,16 +101,20 @@ def run(args) -> int:
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
     poses = open_pose_source(args.pose) if args.pose else None
     lookup = PoseLookup(poses, max_skew_s=args.max_skew_ms / 1e3) if poses is not None else None
-    view, gripper = None, None
+    view, gripper, second_camera = None, None, None
     statistics, records = LiveStatistics(), []
     try:
         view = _open_view(args, maps)
         gripper = WSG50(args.gripper) if args.gripper else None
         opening = gripper.opening_mm if gripper is not None else args.opening
+        if args.second_camera is not None:
+            second_camera = OpenCVCamera(camera_source(args.second_camera), localizer.image_shape[:2],
+                                         corners=parse_corners(args.corners), time_offset_s=args.time_offset_s)
         with OpenCVCamera(source, localizer.image_shape[:2], corners=parse_corners(args.corners),
                           time_offset_s=args.time_offset_s) as camera, CompilationCounter() as compiles:
-            bar = tqdm(live_estimates(camera, localizer, opening, gripper_pose=lookup, max_frames=args.frames,
-                                      latest_only=not every_frame), total=args.frames, unit="frame")
+            bar = tqdm(live_estimates(camera, localizer, opening, gripper_pose=lookup, second_camera=second_camera,
+                                      max_frames=args.frames, latest_only=not every_frame),
+                       total=args.frames, unit="frame")
             for frame, estimate in bar:
                 statistics.add(frame, estimate)
                 bar.set_postfix_str(_progress(estimate))
@@ -121,6 +129,8 @@ def run(args) -> int:
     finally:
         if gripper is not None:
             gripper.close()
+        if second_camera is not None:
+            second_camera.close()
         if poses is not None and hasattr(poses, "close"):
             poses.close()
         if view is not None:

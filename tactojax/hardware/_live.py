@@ -115,6 +115,7 @@ def live_estimates(
     opening_mm: float | Callable[[], float],
     *,
     gripper_pose: Callable[[Frame], jaxlie.SE3 | None] | None = None,
+    second_camera: Camera | None = None,
     max_frames: int | None = None,
     latest_only: bool = False,
 ) -> Iterator[tuple[Frame, LiveEstimate]]:
@@ -128,6 +129,9 @@ def live_estimates(
         gripper_pose: the gripper pose at a frame (e.g. a :class:`PoseLookup`), passed to the
             localizer with it so that successive grasps fuse into one belief; None: no poses
             (each settled grasp then starts a new belief).
+        second_camera: the opposite finger's tactile camera, when it carries a sensor: read in
+            step with ``camera`` (one frame each per estimate), its frame goes to the localizer
+            as ``second_image``; the stream ends when either does.
         max_frames: stop after this many estimates (None: until the stream ends).
         latest_only: read the camera in a background thread and always take the newest frame.
 
@@ -143,8 +147,12 @@ def live_estimates(
                 frame = latest.get() if latest is not None else camera.read()
             except EndOfStream:
                 return
+            try:
+                second = second_camera.read().image if second_camera is not None else None
+            except EndOfStream:
+                return
             T_world_gripper = gripper_pose(frame) if gripper_pose is not None else None
-            yield frame, localizer(frame.image, read_opening(), T_world_gripper)
+            yield frame, localizer(frame.image, read_opening(), T_world_gripper, second)
             count += 1
     finally:
         if latest is not None:

@@ -16,7 +16,11 @@ One update, as a pipeline of small named steps (KISS-ICP style):
    imprints where it lands), scaled by the belief's :class:`BeliefCalibration`;
 4. **refine**: the ``refine`` best are registered by ICP, all buffered touches at once (their
    points in the reference frame, each against the imprints around where it lands, facing its
-   way), and weighed again; duplicates are merged and the best ``hypotheses`` kept, normalised.
+   way), and weighed again;
+5. **probe** the best hypothesis's neighbourhood (:func:`neighbourhood_probes`): poses just
+   outside the 2 mm ball, along the directions the contact pins down least, are weighed too, so
+   that a mode free to slide (a patch on a flat face) keeps its spread instead of reporting
+   certainty; duplicates are merged and the best ``hypotheses`` kept, normalised.
 
 A symmetric object's copies are all kept (they are distinct poses that the touches cannot tell
 apart); :meth:`PoseBelief.probability_within` and :meth:`PoseBelief.modes` treat them as one.
@@ -88,6 +92,11 @@ class BeliefSettings:
     """Contact points of each touch that ICP registers."""
     duplicate_mm: float = 0.5
     """Hypotheses closer than this (the touches' cloud RMSE, not up to symmetry) are one."""
+    probe_mm: float = 3.0
+    """The best hypothesis's neighbourhood is probed this far away (the touches' cloud RMSE),
+    both ways along each of its six principal directions of motion (:func:`neighbourhood_probes`),
+    just outside the :data:`WITHIN_MM` ball: a mode that the touches do not pin down (a patch on
+    a flat face, free to slide) then holds its spread, and P(within 2 mm) says so (0: no probes)."""
     coarse: LikelihoodSettings = LikelihoodSettings(sigma_mm=0.5, margin_mm=0.5, interpolate=False)
     """Noise model of the unrefined candidates (wider: they sit up to half a grid step off; the
     surface read at the nearest cell)."""
@@ -404,6 +413,45 @@ def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "
     return _take(poses, best), best_scores
 
 
+def neighbourhood_probes(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+                         distance_mm: float, max_turn_rad: float = 1.0) -> jaxlie.SE3:
+    """(12,) poses about ``distance_mm`` (the cloud RMSE of the belief's touches, to first order)
+    from the hypothesis ``T_object_reference``, both ways along each principal direction of what
+    the touches' contact says about the pose.
+
+    The directions are the generalised eigenvectors of the contact points' Gauss-Newton
+    information (``J^T J``, ``J`` the (P, 6) derivative of their signed distances to the map's
+    surface by a motion of the reference frame) against the cloud-RMSE metric (``K^T K``, ``K``
+    the derivative of the points themselves): on a flat face they span the slides and the turn
+    in the face, which the contact cannot see; on a cylinder, the slide along and the turn
+    about its axis. A turn larger than ``max_turn_rad`` is shortened to it (a pinpoint contact).
+    """
+    points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact).reshape(-1, 3)
+    valid = (belief.evidence.contact_valid & belief.touch_valid[:, None]).reshape(-1)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(jnp.float32)
+    zero = jnp.zeros(6)
+
+    def moved(delta):  # (P, 3) the points in the reference frame after the motion exp(delta)
+        return jnp.where(valid[:, None], jaxlie.SE3.exp(delta) @ points, 0.0)
+
+    def distances(delta):
+        distance, known = view.surface.signed_distance(T_object_reference @ moved(delta))
+        return jnp.where(valid & known, distance, 0.0)
+
+    J = jax.jacfwd(distances)(zero)  # (P, 6)
+    K = jax.jacfwd(moved)(zero)  # (P, 3, 6)
+    information = J.T @ J / count
+    metric = jnp.einsum("pik,pil->kl", K, K) / count + 1e-6 * jnp.eye(6)
+    lower = jnp.linalg.cholesky(metric)
+    whiten = jax.scipy.linalg.solve_triangular(lower, jnp.eye(6), lower=True)  # L^-1
+    _, eigenvectors = jnp.linalg.eigh(whiten @ information @ whiten.T)
+    directions = (whiten.T @ eigenvectors).T  # (6, 6) rows u with u^T metric u = 1
+    deltas = distance_mm * jnp.concatenate([directions, -directions])  # (12, 6): (translation, rotation)
+    turn = jnp.linalg.norm(deltas[:, 3:], axis=1, keepdims=True)
+    deltas = deltas * jnp.minimum(1.0, max_turn_rad / jnp.maximum(turn, 1e-9))
+    return jax.vmap(lambda delta: T_object_reference @ jaxlie.SE3.exp(delta))(deltas)
+
+
 def update_belief(
     view: LocalizationMap,
     belief: PoseBelief,
@@ -454,6 +502,11 @@ def update_belief(
                           refined)
     scores = scores.at[chosen].set(jnp.maximum(refined_scores, scores[chosen]))
     scores = jnp.where(jnp.isfinite(scores), scores, -jnp.inf)
+    if settings.probe_mm > 0:
+        probes = neighbourhood_probes(view, belief, _take(pooled, jnp.argmax(scores)), settings.probe_mm)
+        probe_scores = jnp.where(jnp.any(jnp.isfinite(scores)), score(probes), -jnp.inf)
+        pooled = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pooled, probes)
+        scores = jnp.concatenate([scores, jnp.where(jnp.isfinite(probe_scores), probe_scores, -jnp.inf)])
     poses, kept = _keep_distinct(belief, pooled, scores, settings.hypotheses, settings.duplicate_mm)
     any_valid = jnp.any(jnp.isfinite(kept))
     log_evidence = jax.nn.logsumexp(jnp.where(any_valid, kept, 0.0))

@@ -30,12 +30,13 @@ class RecordingLocalizer:
     """Stands for a Localizer: records what each call was given."""
 
     def __init__(self):
-        self.calls = []
+        self.calls, self.second = [], []
 
     def __call__(self, image, opening_mm, T_world_gripper=None, second_image=None):
         from tactojax.localize import LiveEstimate
 
         self.calls.append((int(image[0, 0, 0]), opening_mm, T_world_gripper))
+        self.second.append(None if second_image is None else int(second_image[0, 0, 0]))
         return LiveEstimate(object_id=None, object_probabilities={}, T_object_sensor=None, T_world_object=None,
                             probability_within=0.0, modes=(), contact=True, grasps=0, updated=False,
                             latency_s=0.001 * (len(self.calls)))
@@ -75,3 +76,16 @@ def test_without_a_pose_source_the_localizer_gets_no_pose():
     assert len(out) == 1 and localizer.calls == [(0, 30.0, None)]
     with pytest.raises(ValueError, match="max_skew_s"):
         PoseLookup(PoseLog(np.zeros(1), np.array([pose_at(0.0)])), max_skew_s=0.0)
+
+
+def test_a_second_camera_is_read_in_step_and_passed_as_the_second_image():
+    localizer = RecordingLocalizer()
+    second = ListCamera([0.0, 0.1])
+    for frame in second.frames:
+        frame.image[...] += 10
+    out = list(live_estimates(ListCamera([0.0, 0.1, 0.2]), localizer, 30.0, second_camera=second))
+    assert len(out) == 2  # the second camera's stream ended first
+    assert [image for image, _, _ in localizer.calls] == [0, 1] and localizer.second == [10, 11]
+    alone = RecordingLocalizer()
+    list(live_estimates(ListCamera([0.0]), alone, 30.0))
+    assert alone.second == [None]

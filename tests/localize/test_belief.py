@@ -166,6 +166,29 @@ def test_symmetric_map_keeps_both_copies_and_counts_them_as_one(synthetic, belie
     assert float(belief.probability_within()) > 0.9
 
 
+def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthetic, belief_settings):
+    """Parallel ridges: a touch slid along them feels the same, so the belief must not be sure
+    of where it is along them; on the bumps (every direction observable) it is. The best
+    hypothesis's probes sit 3 mm (the touch's cloud RMSE, measured here point by point) away."""
+    from tactojax.localize._belief import neighbourhood_probes
+
+    within = {}
+    for name, view, yaw in (("bumps", bumps_view, 0.0), ("ridges", ridges_view, 10.0)):
+        T_true = synthetic.sensor_pose(1.5, -1.0, yaw)
+        touch = synthetic.touch(getattr(synthetic, name), T_true)
+        belief = update(view, empty_belief(view, belief_settings), touch, jaxlie.SE3.identity(), belief_settings)
+        within[name] = float(belief.probability_within())
+        probes = neighbourhood_probes(view, belief, belief.best, belief_settings.probe_mm)
+        evidence = _evidence(touch, view, belief_settings)
+        points = np.asarray(evidence.contact)[np.asarray(evidence.contact_valid)]
+        centre = np.asarray(belief.best.as_matrix(), np.float64)
+        for probe in np.asarray(probes.as_matrix(), np.float64):
+            moved = points @ (probe[:3, :3] - centre[:3, :3]).T + (probe[:3, 3] - centre[:3, 3])
+            assert np.sqrt(np.mean(np.sum(moved**2, axis=1))) == pytest.approx(belief_settings.probe_mm, rel=0.1)
+    assert within["bumps"] > 0.9
+    assert within["ridges"] < 0.5
+
+
 @pytest.mark.parametrize("case", ["no contact", "one pixel", "off the map"])
 def test_belief_never_holds_nan(bumps_view, synthetic, belief_settings, case):
     view = bumps_view
