@@ -112,24 +112,30 @@ def load_tactile_map(path) -> TactileMap:
                       sensor=str(header.get("sensor", "")))
 
 
-def load_localization_map(path, *, encoder_name: str | None = None):
+def load_localization_map(path, *, encoder_name: str | None = None, progress: bool = False):
     """A map file as localization reads it (:class:`~tactojax.localize.LocalizationMap`: its
-    imprints, its surface, the object's symmetries), with the belief calibration its header
-    stores (``tactojax calibrate-belief``; uncalibrated without one).
+    imprints with their retrieval features, its surface, the object's symmetries), with the
+    belief calibration its header stores (``tactojax calibrate-belief``; uncalibrated without one).
 
     Args:
-        path: a map written by :func:`save_tactile_map`, with features.
-        encoder_name: the encoder the features come from, when not the default: a calibration
-            fit with another encoder is not used.
+        path: a map written by :func:`save_tactile_map` (``tactojax map``).
+        encoder_name: the encoder of the retrieval features, when not the default. The features
+            the map stores are used when they come from it (``calibrate-belief`` stores them);
+            otherwise the map's images are encoded now. A calibration fit with another encoder
+            is not used.
+        progress: show a progress bar while encoding.
     """
-    from tactojax.io._encoder import DEFAULT_ENCODER
+    from tactojax.features import encode_images
+    from tactojax.io._encoder import DEFAULT_ENCODER, resolve_encoder
     from tactojax.localize import LocalizationMap, calibration_from_json
 
+    encoder_name = encoder_name or DEFAULT_ENCODER
     tactile_map = load_tactile_map(path)
-    if tactile_map.features.shape[1] == 0:
-        raise ValueError(f"map {path} stores no features: build it with `tactojax map` (which encodes them)")
     fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
-    usable = fit is not None and fit.get("encoder") == (encoder_name or DEFAULT_ENCODER)
+    usable = fit is not None and fit.get("encoder") == encoder_name
+    if tactile_map.features.shape[1] == 0 or not usable:  # features of unknown origin: encode them
+        encoder = resolve_encoder(encoder_name)
+        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=progress))
     return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None)
 
 

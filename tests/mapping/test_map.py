@@ -102,6 +102,23 @@ def test_save_load_round_trip_and_clear_errors(cylinder_map, tmp_path):
         load_tactile_map(tmp_path / "wrong.npz")
 
 
+def test_a_localization_map_gets_its_features_and_its_stored_calibration(cylinder_map, tiny_encoder_path, tmp_path):
+    """A map as ``tactojax map`` writes it (no features) is encoded on load; a calibration fit
+    with the same encoder is used, one fit with another is not."""
+    from tactojax.io import load_encoder, load_localization_map
+
+    encoder_name = str(tiny_encoder_path)
+    fit = {"temperature": 0.3, "appearance": 2.0, "fusion_exponent": 0.5, "encoder": encoder_name}
+    path = save_tactile_map(tmp_path / "map.npz", cylinder_map.with_features(jnp.zeros((len(cylinder_map), 0))),
+                            metadata={"belief_calibration": fit})
+    view = load_localization_map(path, encoder_name=encoder_name)
+    assert view.features.shape == (len(cylinder_map), load_encoder(tiny_encoder_path).feature_dim)
+    assert float(view.calibration.temperature) == pytest.approx(0.3)
+    other = save_tactile_map(tmp_path / "other.npz", cylinder_map, metadata={"belief_calibration": {
+        **fit, "encoder": "another"}})
+    assert float(load_localization_map(other, encoder_name=encoder_name).calibration.temperature) == pytest.approx(0.1)
+
+
 def test_ply_export_reads_back(cylinder_map, tmp_path):
     import trimesh
 
