@@ -1,4 +1,4 @@
-"""The README's command list, run exactly as written through ``tactojax.cli.main``.
+"""The README's command list and its Python example, run exactly as written.
 
 Each ``tactojax ...`` line of the bash block under "## Command line" runs in order in one
 folder, so every file a line reads is what an earlier line wrote (the defaults must compose).
@@ -12,6 +12,11 @@ Only two things change, to keep the test within a few tens of seconds on 2 cores
 
 ``SLOW`` lines are skipped here and say why; ``TACTOJAX_README_ALL=1`` runs them too, and prints
 each line's time (run by hand when the list changes).
+
+The Python example then runs in the same folder, on the maps and test grasps the list made, as
+``tactojax calibrate-belief`` leaves the maps (their retrieval features stored; the calibration
+stays the default one, as that line is skipped). The quick start's test command is what
+``.ci/run`` runs.
 """
 
 from __future__ import annotations
@@ -150,7 +155,31 @@ def test_readme_lists_the_commands_it_runs():
     assert set(SMALLER) | set(SLOW) <= {argv[0] for argv in commands}
 
 
-def test_readme_command_list_runs_as_written(tmp_path, monkeypatch, capsys):
+def readme_python_example(text: str) -> str:
+    """The README's Python example (the first ``python`` block after its quick start)."""
+    section = text.split("## Quick start", 1)[1]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
+
+
+def _store_features(path: str) -> None:
+    """What ``tactojax calibrate-belief`` stores in a map besides the calibration: the retrieval
+    features of its imprints, from the default encoder."""
+    from tactojax.cli._maps import load_maps_with_features
+    from tactojax.io import save_tactile_map, tactile_map_metadata
+
+    (tactile_map,), _ = load_maps_with_features([path], None, progress=False)
+    save_tactile_map(path, tactile_map, metadata=tactile_map_metadata(path).get("metadata", {}))
+
+
+def test_readme_test_command_is_the_ci_script():
+    quick_start = README.read_text().split("## Quick start", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    commands = [line for line in quick_start.splitlines() if line and not line.startswith("#")]
+    assert commands[1] == "bash .ci/run", commands
+    ci = (README.parent / ".ci" / "run").read_text()
+    assert "-m pytest" in ci and "mkdocs build --strict" in ci
+
+
+def test_readme_command_list_and_python_example_run_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
     timings = []
@@ -171,3 +200,16 @@ def test_readme_command_list_runs_as_written(tmp_path, monkeypatch, capsys):
         with capsys.disabled():
             for seconds, line in timings:
                 print(f"{seconds:6.1f} s  tactojax {line}")
+
+    for path in ("scissors.npz", "tape_roll.npz"):
+        _store_features(path)
+    namespace = {}
+    exec(compile(readme_python_example(README.read_text()), "README.md", "exec"), namespace)
+    printed = capsys.readouterr().out
+    belief, estimate = namespace["belief"], namespace["estimate"]
+    assert 0.0 <= float(belief.probability_within(2.0)) <= 1.0
+    assert belief.T_world_object.wxyz_xyz.shape == (7,)
+    assert estimate.object_id in {"scissors", "tape_roll"} and 1 <= estimate.grasps <= len(namespace["frames"])
+    assert abs(sum(estimate.object_probabilities.values()) - 1.0) < 1e-4
+    assert estimate.T_world_object is not None and 0.0 <= estimate.probability_within <= 1.0
+    assert estimate.object_id in printed
