@@ -21,12 +21,15 @@ stays the default one, as that line is skipped). The quick start's test command 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shlex
 import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from tactojax.cli import main
@@ -179,28 +182,52 @@ def test_readme_test_command_is_the_ci_script():
     assert "-m pytest" in ci and "mkdocs build --strict" in ci
 
 
-def test_readme_command_list_and_python_example_run_as_written(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
+@pytest.fixture(scope="module")
+def readme_folder(tmp_path_factory):
+    """A folder where the README's command list ran, line by line until one failed, and each
+    line's (argv, exit code, stdout, stderr, seconds)."""
+    folder = tmp_path_factory.mktemp("readme")
     run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
-    timings = []
-    for argv in readme_commands(README.read_text()):
-        if argv[0] in SLOW and not run_all:
-            continue
-        for name in argv:
-            if name in USER_FILES and not Path(name).exists():
-                USER_FILES[name](Path(name))
-        started = time.perf_counter()
-        code = main([*argv, *smaller(argv)])
-        timings.append((time.perf_counter() - started, " ".join(argv)))
-        printed = capsys.readouterr()
-        assert code == 0, f"tactojax {' '.join(argv)} exited {code}:\n{printed.out[-2000:]}\n{printed.err[-2000:]}"
+    results = []
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        for argv in readme_commands(README.read_text()):
+            if argv[0] in SLOW and not run_all:
+                continue
+            for name in argv:
+                if name in USER_FILES and not Path(name).exists():
+                    USER_FILES[name](Path(name))
+            out, err = io.StringIO(), io.StringIO()
+            started = time.perf_counter()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                code = main([*argv, *smaller(argv)])
+            results.append((argv, code, out.getvalue(), err.getvalue(), time.perf_counter() - started))
+            if code != 0:
+                break
+    finally:
+        os.chdir(cwd)
+    return folder, results
+
+
+def test_readme_command_list_runs_as_written(readme_folder, capsys):
+    _, results = readme_folder
+    for argv, code, out, err, _ in results:
+        assert code == 0, f"tactojax {' '.join(argv)} exited {code}:\n{out[-2000:]}\n{err[-2000:]}"
         for expected in PRINTS.get(argv[0], []):
-            assert expected in printed.out, f"tactojax {' '.join(argv)} did not print {expected!r}:\n{printed.out}"
+            assert expected in out, f"tactojax {' '.join(argv)} did not print {expected!r}:\n{out}"
+    run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
+    assert len(results) == sum(1 for argv in readme_commands(README.read_text()) if run_all or argv[0] not in SLOW)
     if run_all:
         with capsys.disabled():
-            for seconds, line in timings:
-                print(f"{seconds:6.1f} s  tactojax {line}")
+            for argv, _, _, _, seconds in results:
+                print(f"{seconds:6.1f} s  tactojax {' '.join(argv)}")
 
+
+def test_readme_python_example_runs_as_written(readme_folder, monkeypatch, capsys):
+    folder, results = readme_folder
+    assert all(code == 0 for _, code, *_ in results), "the README's command list failed (see its test)"
+    monkeypatch.chdir(folder)
     for path in ("scissors.npz", "tape_roll.npz"):
         _store_features(path)
     namespace = {}
