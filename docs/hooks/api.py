@@ -5,12 +5,16 @@ with its members listed explicitly, taken from the package's ``__all__`` or, for
 without one, from its ``from ... import X as X`` re-exports. After the build, every one of those
 names must appear in the site's ``objects.inv`` (the inventory mkdocstrings writes); a missing
 one is a warning, so ``mkdocs build --strict`` fails.
+
+The docstrings cross-reference in Sphinx's way (``:class:`PoseBelief```,
+``:func:`~tactojax.localize.fit_calibration```); the rendered pages show the name alone, in code.
 """
 
 from __future__ import annotations
 
 import ast
 import logging
+import re
 import zlib
 from pathlib import Path
 
@@ -51,6 +55,19 @@ def on_files(files, config):
         uri = "api/index.md" if module == "tactojax" else f"api/{module.split('.', 1)[1]}.md"
         files.append(File.generated(config, uri, content=page(module, names)))
     return files
+
+
+SPHINX_ROLE = re.compile(r":(?:class|func|meth|mod|attr|data|obj|exc|const|ref):(?=<code>)")
+SHORT_NAME = re.compile(r"<code>~(?:[\w]+\.)*([\w]+)</code>")
+
+
+def on_page_content(html, page, config, files):
+    """Sphinx roles in the rendered docstrings: ``:class:<code>X</code>`` -> ``<code>X</code>``,
+    ``<code>~a.b.X</code>`` -> ``<code>X</code>``, and ``Example::`` -> ``Example:``."""
+    if not page.file.src_uri.startswith("api/"):
+        return html
+    html = SHORT_NAME.sub(r"<code>\1</code>", SPHINX_ROLE.sub("", html))
+    return html.replace("::</p>", ":</p>")  # reStructuredText's literal-block marker
 
 
 def inventory_names(path: Path) -> set[str]:
