@@ -35,10 +35,18 @@ def public_names(init: Path) -> list[str]:
             for alias in node.names if alias.asname == alias.name]
 
 
+LAYERS = ("storage", "geometry", "sensor", "objects", "simulate", "shape", "mapping", "features", "localize",
+          "io", "hardware", "viz", "cli")
+"""The packages bottom to top (DESIGN.md); any other comes after them."""
+
+
 def packages() -> dict[str, list[str]]:
-    """``{"tactojax.NAME": [public names]}`` for the top level and every public subpackage."""
+    """``{"tactojax.NAME": [public names]}`` for the top level and every public subpackage, in layer order."""
     found = {"tactojax": public_names(PACKAGE / "__init__.py")}
-    for init in sorted(PACKAGE.glob("*/__init__.py")):
+    order = {name: rank for rank, name in enumerate(LAYERS)}
+    inits = sorted(PACKAGE.glob("*/__init__.py"), key=lambda init: (order.get(init.parent.name, len(LAYERS)),
+                                                                        init.parent.name))
+    for init in inits:
         if not init.parent.name.startswith("_"):
             found[f"tactojax.{init.parent.name}"] = public_names(init)
     return found
@@ -50,10 +58,22 @@ def page(module: str, names: list[str]) -> str:
     return f"# `{module}`\n\n::: {module}\n    options:\n      members:\n{members}"
 
 
+def api_uri(module: str) -> str:
+    """Where a package's API page goes: ``api/index.md`` for ``tactojax``, else ``api/NAME.md``."""
+    return "api/index.md" if module == "tactojax" else f"api/{module.split('.', 1)[1]}.md"
+
+
+def on_config(config):
+    """The nav's "API reference" section lists every package's page (new packages included)."""
+    for entry in config["nav"] or []:
+        if isinstance(entry, dict) and "API reference" in entry:
+            entry["API reference"] = [{module: api_uri(module)} for module in packages()]
+    return config
+
+
 def on_files(files, config):
     for module, names in packages().items():
-        uri = "api/index.md" if module == "tactojax" else f"api/{module.split('.', 1)[1]}.md"
-        files.append(File.generated(config, uri, content=page(module, names)))
+        files.append(File.generated(config, api_uri(module), content=page(module, names)))
     return files
 
 
