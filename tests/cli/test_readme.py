@@ -1,4 +1,4 @@
-"""The README's command list, run exactly as written through ``tactojax.cli.main``.
+"""The README's command list and its Python example, run exactly as written.
 
 Each ``tactojax ...`` line of the bash block under "## Command line" runs in order in one
 folder, so every file a line reads is what an earlier line wrote (the defaults must compose).
@@ -12,16 +12,24 @@ Only two things change, to keep the test within a few tens of seconds on 2 cores
 
 ``SLOW`` lines are skipped here and say why; ``TACTOJAX_README_ALL=1`` runs them too, and prints
 each line's time (run by hand when the list changes).
+
+The Python example then runs in the same folder, on the maps and test grasps the list made, as
+``tactojax calibrate-belief`` leaves the maps (their retrieval features stored; the calibration
+stays the default one, as that line is skipped). The quick start's test command is what
+``.ci/run`` runs.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shlex
 import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from tactojax.cli import main
@@ -150,24 +158,85 @@ def test_readme_lists_the_commands_it_runs():
     assert set(SMALLER) | set(SLOW) <= {argv[0] for argv in commands}
 
 
-def test_readme_command_list_runs_as_written(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
+def readme_python_example(text: str) -> str:
+    """The README's Python example (the first ``python`` block after its quick start)."""
+    section = text.split("## Quick start", 1)[1]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
+
+
+def _store_features(path: str) -> None:
+    """What ``tactojax calibrate-belief`` stores in a map besides the calibration: the retrieval
+    features of its imprints, from the default encoder."""
+    from tactojax.cli._maps import load_maps_with_features
+    from tactojax.io import save_tactile_map, tactile_map_metadata
+
+    (tactile_map,), _ = load_maps_with_features([path], None, progress=False)
+    save_tactile_map(path, tactile_map, metadata=tactile_map_metadata(path).get("metadata", {}))
+
+
+def test_readme_test_command_is_the_ci_script():
+    quick_start = README.read_text().split("## Quick start", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    commands = [line for line in quick_start.splitlines() if line and not line.startswith("#")]
+    assert commands[1] == "bash .ci/run", commands
+    ci = (README.parent / ".ci" / "run").read_text()
+    assert "-m pytest" in ci and "mkdocs build --strict" in ci
+
+
+@pytest.fixture(scope="module")
+def readme_folder(tmp_path_factory):
+    """A folder where the README's command list ran, line by line until one failed, and each
+    line's (argv, exit code, stdout, stderr, seconds)."""
+    folder = tmp_path_factory.mktemp("readme")
     run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
-    timings = []
-    for argv in readme_commands(README.read_text()):
-        if argv[0] in SLOW and not run_all:
-            continue
-        for name in argv:
-            if name in USER_FILES and not Path(name).exists():
-                USER_FILES[name](Path(name))
-        started = time.perf_counter()
-        code = main([*argv, *smaller(argv)])
-        timings.append((time.perf_counter() - started, " ".join(argv)))
-        printed = capsys.readouterr()
-        assert code == 0, f"tactojax {' '.join(argv)} exited {code}:\n{printed.out[-2000:]}\n{printed.err[-2000:]}"
+    results = []
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        for argv in readme_commands(README.read_text()):
+            if argv[0] in SLOW and not run_all:
+                continue
+            for name in argv:
+                if name in USER_FILES and not Path(name).exists():
+                    USER_FILES[name](Path(name))
+            out, err = io.StringIO(), io.StringIO()
+            started = time.perf_counter()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                code = main([*argv, *smaller(argv)])
+            results.append((argv, code, out.getvalue(), err.getvalue(), time.perf_counter() - started))
+            if code != 0:
+                break
+    finally:
+        os.chdir(cwd)
+    return folder, results
+
+
+def test_readme_command_list_runs_as_written(readme_folder, capsys):
+    _, results = readme_folder
+    for argv, code, out, err, _ in results:
+        assert code == 0, f"tactojax {' '.join(argv)} exited {code}:\n{out[-2000:]}\n{err[-2000:]}"
         for expected in PRINTS.get(argv[0], []):
-            assert expected in printed.out, f"tactojax {' '.join(argv)} did not print {expected!r}:\n{printed.out}"
+            assert expected in out, f"tactojax {' '.join(argv)} did not print {expected!r}:\n{out}"
+    run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
+    assert len(results) == sum(1 for argv in readme_commands(README.read_text()) if run_all or argv[0] not in SLOW)
     if run_all:
         with capsys.disabled():
-            for seconds, line in timings:
-                print(f"{seconds:6.1f} s  tactojax {line}")
+            for argv, _, _, _, seconds in results:
+                print(f"{seconds:6.1f} s  tactojax {' '.join(argv)}")
+
+
+def test_readme_python_example_runs_as_written(readme_folder, monkeypatch, capsys):
+    folder, results = readme_folder
+    assert all(code == 0 for _, code, *_ in results), "the README's command list failed (see its test)"
+    monkeypatch.chdir(folder)
+    for path in ("scissors.npz", "tape_roll.npz"):
+        _store_features(path)
+    namespace = {}
+    exec(compile(readme_python_example(README.read_text()), "README.md", "exec"), namespace)
+    printed = capsys.readouterr().out
+    belief, estimate = namespace["belief"], namespace["estimate"]
+    assert 0.0 <= float(belief.probability_within(2.0)) <= 1.0
+    assert belief.T_world_object.wxyz_xyz.shape == (7,)
+    assert estimate.object_id in {"scissors", "tape_roll"} and 1 <= estimate.grasps <= len(namespace["frames"])
+    assert abs(sum(estimate.object_probabilities.values()) - 1.0) < 1e-4
+    assert estimate.T_world_object is not None and 0.0 <= estimate.probability_within <= 1.0
+    assert estimate.object_id in printed
