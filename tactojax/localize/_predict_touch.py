@@ -94,11 +94,11 @@ def marching_grid(surface: MapSurface, points: Float[Array, "N 3"] | None = None
 class PredictionSettings:
     """How a touch is predicted (static)."""
 
-    rows: int = 12
+    rows: int = 8
     """Ray rows across the gel (image rows, spread evenly over its height)."""
-    cols: int = 16
+    cols: int = 12
     """Ray columns across the gel."""
-    steps: int = 48
+    steps: int = 32
     """Sphere-tracing steps per ray (a ray that has not hit by then misses)."""
     min_step_mm: float = 0.2
     """Shortest step, mm (the largest overshoot before the hit is interpolated back)."""
@@ -110,6 +110,8 @@ class PredictionSettings:
     """A grasp that would indent a gel deeper than this is not made, mm."""
     min_indentation_mm: float = 1e-3
     """Indentation that counts as contact, mm."""
+    free_clearance_mm: float = 1.0
+    """Where the map knows no surface, a gel point this far from it counts as free, mm."""
 
 
 @struct.dataclass
@@ -121,6 +123,10 @@ class PredictedGrasp:
     """Rigid indentation of each gel at the ray grid, mm (>= 0)."""
     mask: Bool[Array, "F R C"]
     """Predicted contact."""
+    free: Bool[Array, "F R C"]
+    """Predicted no contact where the map is sure of it: the closed gel plane lies outside the
+    surface (known distance > 0), or more than ``free_clearance_mm`` from where the map knows it
+    (a ray through a gap in the map, e.g. a face never touched, is neither contact nor free)."""
     T_world_sensor: jaxlie.SE3
     """(F,) each gel's pose once the jaws closed, mm."""
     opening: Float[Array, ""]
@@ -130,23 +136,27 @@ class PredictedGrasp:
     inside it, no gel indented past its thickness)."""
 
 
+def _read(grid: MarchingGrid, points: Float[Array, "N 3"]) -> tuple[Float[Array, "N"], Bool[Array, "N"]]:
+    """The marching grid's nearest cell at object-frame points: its value (mm; outside the grid,
+    the distance to the grid's box) and whether the surface is known there."""
+    shape = np.array(grid.distance.shape)
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    cell = (points - grid.origin) / grid.pitch_mm
+    inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)
+    index = jnp.clip(jnp.round(cell), 0, shape - 1).astype(jnp.int32) @ strides
+    value, known = grid.distance.reshape(-1)[index], grid.known.reshape(-1)[index] & inside
+    outside = jnp.linalg.norm(jnp.maximum(jnp.maximum(-cell, cell - (shape - 1)), 0.0), axis=-1) * grid.pitch_mm
+    return jnp.where(inside, value, outside + grid.pitch_mm), known
+
+
 def _march(grid: MarchingGrid, surface: MapSurface, origins: Float[Array, "N 3"], direction: Float[Array, "3"],
            settings: PredictionSettings) -> tuple[Float[Array, "N"], Bool[Array, "N"], Bool[Array, "N"]]:
     """Distance along ``direction`` from every origin to the map's surface (object frame, mm),
     whether each ray hit it within the open gripper's travel, and whether it started inside."""
-    shape = np.array(grid.distance.shape)
-    strides = np.array([shape[1] * shape[2], shape[2], 1])
-    flat, flat_known = grid.distance.reshape(-1), grid.known.reshape(-1)
     slack = grid.pitch_mm * math.sqrt(3.0) / 2.0  # the nearest cell's value is off by at most this
 
     def read(t):
-        cell = (origins + t[:, None] * direction - grid.origin) / grid.pitch_mm
-        inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)
-        index = jnp.clip(jnp.round(cell), 0, shape - 1).astype(jnp.int32) @ strides
-        value, known = flat[index], flat_known[index] & inside
-        # Outside the grid: the distance to the grid's box bounds the distance to the surface.
-        outside = jnp.linalg.norm(jnp.maximum(jnp.maximum(-cell, cell - (shape - 1)), 0.0), axis=-1) * grid.pitch_mm
-        return jnp.where(inside, value, outside + slack), known
+        return _read(grid, origins + t[:, None] * direction)
 
     def step(_, carry):
         t, previous, hit = carry
@@ -205,17 +215,22 @@ def predict_grasp(
     opening = jnp.float32(settings.max_opening_mm)
     T_object_world = T_world_object.inverse()
     xy = ray_grid(*gel_size_mm, settings).reshape(-1, 2)
-    travels, heightmaps, touched, collides = [], [], [], []
+    travels, heightmaps, free, touched, collides = [], [], [], [], []
     for pose in (sensor_pose, opposite_sensor_pose):
         T_object_start = T_object_world @ pose(T_world_gripper, opening)
         rotation = T_object_start.rotation().as_matrix()
-        origins = matvec(rotation[:, :2][None], xy) + T_object_start.translation()
+        origins = matvec(rotation, jnp.concatenate([xy, jnp.zeros_like(xy[:, :1])], axis=-1)) + T_object_start.translation()
         distance, hit, inside = _march(grid, surface, origins, rotation[:, 2], settings)
         any_hit = jnp.any(hit)
         first = jnp.where(any_hit, jnp.min(jnp.where(hit, distance, jnp.inf)), 0.0)
         travel = first + (settings.depth_mm if len(travels) < fingers else 0.0)
         heightmaps.append(jnp.where(hit, jnp.maximum(travel - distance, 0.0), 0.0).reshape(settings.rows,
                                                                                             settings.cols))
+        closed = origins + travel * rotation[:, 2]  # the closed gel plane
+        clearance, _ = _read(grid, closed)
+        value, known = surface.signed_distance(closed, interpolate=False)  # as the likelihood reads it
+        free.append(((known & (value > 0.0)) | (~known & (clearance > settings.free_clearance_mm))).reshape(
+            settings.rows, settings.cols))
         travels.append(travel)
         touched.append(any_hit)
         collides.append(jnp.any(inside))
@@ -228,20 +243,22 @@ def predict_grasp(
     heightmap = jnp.stack(heightmaps[:fingers])
     valid = (touched[0] & touched[1] & ~collides[0] & ~collides[1] & (final_opening > 0)
              & (jnp.max(heightmap) < settings.gel_thickness_mm))
-    return PredictedGrasp(heightmap=heightmap, mask=heightmap > settings.min_indentation_mm,
+    mask = heightmap > settings.min_indentation_mm
+    return PredictedGrasp(heightmap=heightmap, mask=mask, free=~mask & jnp.stack(free[:fingers]),
                           T_world_sensor=T_world_sensor, opening=final_opening, valid=valid)
 
 
-def predicted_evidence(heightmap: Float[Array, "R C"], mask: Bool[Array, "R C"], gel_size_mm: tuple[float, float],
-                       settings: PredictionSettings, *, contact_count: int = 32, free_count: int = 32) -> TouchEvidence:
+def predicted_evidence(heightmap: Float[Array, "R C"], mask: Bool[Array, "R C"], free: Bool[Array, "R C"],
+                       gel_size_mm: tuple[float, float], settings: PredictionSettings, *, contact_count: int = 32,
+                       free_count: int = 32) -> TouchEvidence:
     """The likelihood's evidence of one predicted touch (as
     :func:`~tactojax.localize._points.touch_evidence` draws it from an observed one): contact
-    points (x, y, -height) from the mask, no-contact points (x, y, 0) elsewhere, sensor frame, mm."""
+    points (x, y, -height) from the mask, no-contact points (x, y, 0) where ``free``, sensor frame, mm."""
     xy = ray_grid(*gel_size_mm, settings).reshape(-1, 2)
     flat_mask, flat_height = mask.reshape(-1), heightmap.reshape(-1)
     rows, cols = mask.shape
     contact_index, contact_valid = draw_pixels(flat_mask, pixel_priority(rows, cols, 1), contact_count)
-    free_index, free_valid = draw_pixels(~flat_mask, pixel_priority(rows, cols, 2), free_count)
+    free_index, free_valid = draw_pixels(free.reshape(-1), pixel_priority(rows, cols, 2), free_count)
     contact = jnp.concatenate([xy[contact_index], -flat_height[contact_index, None]], axis=-1)
     free = jnp.concatenate([xy[free_index], jnp.zeros((free_count, 1))], axis=-1)
     touched = jnp.any(flat_mask)
