@@ -114,6 +114,9 @@ def run(args) -> int:
         payload["objects"][tactile_map.object_id] = {
             "episodes": args.episodes, "symmetric": symmetric, "results": summaries, "stop": stops,
             "turn_deg": result.turn_deg.tolist(),
+            "episodes_detail": {p: {"symmetric_rmse_mm": result.symmetric_rmse[p].tolist(),
+                                    "rmse_mm": result.rmse[p].tolist(), "probability": result.probability[p].tolist(),
+                                    "spent": result.spent[p].tolist()} for p in policies},
             "within_2mm_at_90_270": {p: [float(np.mean((result.symmetric_rmse[p] if symmetric else result.rmse[p])
                                                        [hard, k] <= 2.0)) if hard.any() else None
                                          for k in range(args.max_grasps)] for p in policies},

@@ -89,7 +89,7 @@ def run_active_episodes(
         view: the object's map.
         obj: the simulated object (its true shape: only the simulator reads it).
         spec: the map's sensor.
-        observe: (N, H, W, 3) uint8 images -> (heightmaps mm, masks, features): what the robot
+        observe: (N, H, W, 3) uint8 frames -> (heightmaps mm, masks, features): what the robot
             reads from its frames (shape model and encoder).
         episodes, max_grasps: E episodes of K grasps each.
         policies: names from ``POLICIES``.
@@ -115,19 +115,16 @@ def run_active_episodes(
     out = ActiveEpisodes(*({p: np.zeros(shape) for p in policies} for _ in range(3)),
                          {p: np.zeros(shape, bool) for p in policies}, np.zeros(episodes), [])
     for episode in range(episodes):
-        block = 8 * max_grasps
-        plan = grasp_candidates(protocol_key, obj, protocol, np.full(block, episode), np.arange(block))
-        T_world_object = jax.tree.map(lambda x: x[0], plan.T_world_object)
-        out.turn_deg[episode] = float(np.rad2deg(plan.turn_rad[0]))
-        executed = simulate_two_sensor_grasps(jax.random.fold_in(noise_key, episode), spec, obj, plan.T_world_object,
-                                              plan.T_world_gripper)
-        closing = np.flatnonzero(np.asarray(executed.valid))
+        executed, closing = _protocol_grasps(protocol_key, jax.random.fold_in(noise_key, episode), spec, obj, protocol,
+                                             episode, max_grasps)
+        T_world_object = executed.T_world_object
+        out.turn_deg[episode] = executed.turn_deg
         for policy in policies:
             T_object_sensor, means, covariances, valid = [], [], [], []
             belief = empty_belief(view, belief_settings)
             for k in range(max_grasps):
                 if k == 0 or policy == "random":
-                    grasp = _take(executed, closing[k]) if k < len(closing) else None
+                    grasp = _take(executed.grasps, closing[k]) if k < len(closing) else None
                 else:
                     T_world_gripper = _choose(jax.random.fold_in(policy_key, episode * max_grasps + k), view, grid,
                                               belief, policy, candidates, settings, out.ranking_s)
@@ -136,7 +133,9 @@ def run_active_episodes(
                 if grasp is None or not bool(grasp.valid):
                     out.spent[policy][episode, k] = True
                 else:
-                    heightmaps, masks, features = observe(np.asarray(grasp.imprint.image))
+                    # The camera's frames, as a dataset stores them (uint8).
+                    frames = np.asarray(jnp.round(grasp.imprint.image * 255.0)).astype(np.uint8)
+                    heightmaps, masks, features = observe(frames)
                     for finger in range(2):
                         touch = Touch(heightmap=jnp.asarray(heightmaps[finger]), mask=jnp.asarray(masks[finger]),
                                       feature=jnp.asarray(features[finger]),
@@ -165,6 +164,31 @@ def run_active_episodes(
             tqdm.write(f"episode {episode + 1}/{episodes} (turn {out.turn_deg[episode]:.0f} deg): "
                        + ", ".join(f"{p} {out.symmetric_rmse[p][episode, -1]:.2f} mm" for p in policies))
     return out
+
+
+@dataclass
+class _ProtocolGrasps:
+    grasps: object
+    """The simulated protocol candidates (a GraspResult of two-finger grasps)."""
+    T_world_object: jaxlie.SE3
+    turn_deg: float
+
+
+def _protocol_grasps(protocol_key, noise_key, spec, obj, protocol, episode, wanted, *, block=32, blocks=8):
+    """The new-grasps protocol's candidates of one episode, simulated in blocks until ``wanted``
+    close on the object (at most ``blocks`` blocks); and the indices of those that close."""
+    results, closing = [], np.zeros(0, int)
+    for b in range(blocks):
+        plan = grasp_candidates(protocol_key, obj, protocol, np.full(block, episode), b * block + np.arange(block))
+        result = simulate_two_sensor_grasps(jax.random.fold_in(noise_key, b), spec, obj, plan.T_world_object,
+                                            plan.T_world_gripper)
+        results.append(result)
+        closing = np.concatenate([closing, b * block + np.flatnonzero(np.asarray(result.valid))])
+        if len(closing) >= wanted:
+            break
+    grasps = jax.tree.map(lambda *x: jnp.concatenate(x), *results)
+    return (_ProtocolGrasps(grasps, jax.tree.map(lambda x: x[0], plan.T_world_object),
+                            float(np.rad2deg(plan.turn_rad[0]))), closing)
 
 
 def _take(tree, index):
