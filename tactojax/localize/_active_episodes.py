@@ -1,7 +1,8 @@
 """Closed-loop active touch in simulation: which policy localizes with the fewest grasps.
 
 Each episode places the object at a random turn (the new-grasps protocol's placement, all
-turns allowed) and makes a first grasp, the protocol's first that closes on it. Then each
+turns allowed; drawn again, as the protocol does, where no grasp closes on it) and makes a
+first grasp, the protocol's first that closes on it. Then each
 policy chooses every further grasp and the simulator executes it at the object's true
 placement (both fingers recorded; heightmaps predicted from the images by the shape model,
 features by the encoder, as a robot would). A chosen grasp that misses or collides is spent.
@@ -44,6 +45,7 @@ from tactojax.objects import TactileObject
 from tactojax.sensor import SensorSpec
 from tactojax.simulate import GraspsProtocol, simulate_two_sensor_grasps
 from tactojax.simulate._protocols import grasp_candidates
+from tactojax.simulate._run import MAX_PLACEMENTS
 
 POLICIES = ("active", "random", "largest-contact")
 
@@ -174,17 +176,23 @@ class _ProtocolGrasps:
     turn_deg: float
 
 
-def _protocol_grasps(protocol_key, noise_key, spec, obj, protocol, episode, wanted, *, block=32, blocks=8):
+def _protocol_grasps(protocol_key, noise_key, spec, obj, protocol, episode, wanted, *, block=32, blocks=8,
+                     placements=MAX_PLACEMENTS):
     """The new-grasps protocol's candidates of one episode, simulated in blocks until ``wanted``
-    close on the object (at most ``blocks`` blocks); and the indices of those that close."""
-    results, closing = [], np.zeros(0, int)
-    for b in range(blocks):
-        plan = grasp_candidates(protocol_key, obj, protocol, np.full(block, episode), b * block + np.arange(block))
-        result = simulate_two_sensor_grasps(jax.random.fold_in(noise_key, b), spec, obj, plan.T_world_object,
-                                            plan.T_world_gripper)
-        results.append(result)
-        closing = np.concatenate([closing, b * block + np.flatnonzero(np.asarray(result.valid))])
-        if len(closing) >= wanted:
+    close on the object (at most ``blocks`` blocks); and the indices of those that close. A
+    placement where none of the first two blocks closes is drawn again (as the protocol does)."""
+    for placement in range(placements):
+        results, closing = [], np.zeros(0, int)
+        for b in range(blocks):
+            plan = grasp_candidates(protocol_key, obj, protocol, np.full(block, episode), b * block + np.arange(block),
+                                    placement=np.full(block, placement))
+            result = simulate_two_sensor_grasps(jax.random.fold_in(noise_key, b), spec, obj, plan.T_world_object,
+                                                plan.T_world_gripper)
+            results.append(result)
+            closing = np.concatenate([closing, b * block + np.flatnonzero(np.asarray(result.valid))])
+            if len(closing) >= wanted or (b == 1 and len(closing) == 0):
+                break
+        if len(closing):
             break
     grasps = jax.tree.map(lambda *x: jnp.concatenate(x), *results)
     return (_ProtocolGrasps(grasps, jax.tree.map(lambda x: x[0], plan.T_world_object),
