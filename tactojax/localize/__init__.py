@@ -15,6 +15,11 @@ A typical session::
     belief.T_world_object, belief.probability_within(2.0)
 """
 
+from tactojax.localize._active import ActiveSettings as ActiveSettings
+from tactojax.localize._active import GraspRanking as GraspRanking
+from tactojax.localize._active import next_grasp as next_grasp
+from tactojax.localize._active import propose_grasps as propose_grasps
+from tactojax.localize._active import should_stop as should_stop
 from tactojax.localize._baselines import PAPER_METHODS as PAPER_METHODS
 from tactojax.localize._baselines import localize_baseline as localize_baseline
 from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
@@ -48,10 +53,25 @@ from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
 from tactojax.localize._new_grasps import TestEpisodes as TestEpisodes
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._pose import PoseEstimate as PoseEstimate
+from tactojax.localize._predict_touch import MarchingGrid as MarchingGrid
+from tactojax.localize._predict_touch import PredictedGrasp as PredictedGrasp
+from tactojax.localize._predict_touch import PredictionSettings as PredictionSettings
+from tactojax.localize._predict_touch import map_marching_grid as map_marching_grid
+from tactojax.localize._predict_touch import predict_grasp as predict_grasp
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
 __all__ = [
+    "should_stop",
+    "propose_grasps",
+    "predict_grasp",
+    "next_grasp",
+    "map_marching_grid",
+    "PredictionSettings",
+    "PredictedGrasp",
+    "MarchingGrid",
+    "GraspRanking",
+    "ActiveSettings",
     "PAPER_METHODS",
     "WITHIN_MM",
     "BeliefCalibration",

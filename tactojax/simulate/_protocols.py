@@ -213,16 +213,23 @@ def grasps_plan(
 
 
 def grasp_candidates(
-    key: PRNGKeyArray, obj: TactileObject, protocol: GraspsProtocol, episode, candidate,
+    key: PRNGKeyArray, obj: TactileObject, protocol: GraspsProtocol, episode, candidate, *, placement=None,
 ) -> GraspCandidates:
-    """Candidate grasps ``candidate[n]`` of episodes ``episode[n]`` (integer arrays (N,))."""
+    """Candidate grasps ``candidate[n]`` of episodes ``episode[n]`` (integer arrays (N,)).
+
+    ``placement[n]`` (default 0): the episode's how-manieth placement (turn) draw; an episode
+    whose placement the gripper cannot grasp draws another (placement 0 is the one the
+    protocol always drew)."""
     check_grasps_protocol(protocol)
     episode = np.asarray(episode, np.int64).reshape(-1)
     candidate = np.asarray(candidate, np.int64).reshape(-1)
+    placement = np.zeros_like(episode) if placement is None else np.asarray(placement, np.int64).reshape(-1)
     if episode.size and (episode.min() < 0 or episode.max() >= protocol.episodes or candidate.min() < 0):
         raise ValueError(f"episodes must lie in [0, {protocol.episodes}) and candidates be >= 0")
     turn_keys, grasp_keys = _episode_keys(key, episode)
-    turn_index = jax.vmap(lambda k: jax.random.randint(k, (), 0, len(protocol.turns_deg)))(turn_keys)
+    draw_turn = jax.vmap(lambda k: jax.random.randint(k, (), 0, len(protocol.turns_deg)))
+    redrawn = jax.vmap(jax.random.fold_in)(turn_keys, jnp.asarray(placement, jnp.uint32))
+    turn_index = np.where(placement == 0, np.asarray(draw_turn(turn_keys)), np.asarray(draw_turn(redrawn)))
     draws = np.asarray(jax.vmap(lambda k, i: jax.random.uniform(jax.random.fold_in(k, i), (3,)))(
         grasp_keys, jnp.asarray(candidate, jnp.uint32)), np.float64).reshape(-1, 3)
     turn = np.deg2rad(np.asarray(protocol.turns_deg, np.float64))[np.asarray(turn_index)].reshape(-1)

@@ -27,7 +27,11 @@ Records = dict[str, np.ndarray]
 Protocol = MappingProtocol | CalibrationProtocol | GraspsProtocol | SlipProtocol
 
 MAX_MISSES_IN_A_ROW = 50
-"""New-grasps protocol: an episode gives up after this many skipped candidates in a row."""
+"""New-grasps protocol: an episode gives up its placement after this many skipped candidates in
+a row (it then starts again at another placement, the grasps it kept dropped)."""
+MAX_PLACEMENTS = 8
+"""New-grasps protocol: placements an episode draws before it gives up (an object longer than
+the open gripper along the closing axis at some turns, e.g. the screwdriver at 90 degrees)."""
 
 
 def plan_protocol(
@@ -171,25 +175,33 @@ def _simulate_new_grasps(key, spec, obj, protocol: GraspsProtocol, config, batch
         kept: dict[int, list[Records]] = {e: [] for e in episodes}
         next_candidate = dict.fromkeys(episodes, 0)
         misses = dict.fromkeys(episodes, 0)
+        placement = dict.fromkeys(episodes, 0)
         while any(len(kept[e]) < grasps for e in episodes):
             lacking = {e: grasps - len(kept[e]) for e in episodes if len(kept[e]) < grasps}
             episode, candidate = _candidate_round(lacking, next_candidate, batch_size)
             for start in range(0, len(episode), batch_size):
-                batch = plan_candidates(episode[start:start + batch_size], candidate[start:start + batch_size])
+                batch_episodes = episode[start:start + batch_size]
+                batch_placements = np.array([placement[e] for e in batch_episodes.tolist()])
+                batch = plan_candidates(batch_episodes, candidate[start:start + batch_size], placement=batch_placements)
                 records, valid = _new_grasp_records(jax.random.fold_in(sim_key, batch_index), spec, obj, batch,
                                                     config, protocol.fingers)
                 batch_index += 1
                 for n, e in enumerate(np.asarray(batch.episode).tolist()):
-                    if len(kept[e]) == grasps:
-                        continue
+                    if len(kept[e]) == grasps or batch_placements[n] != placement[e]:
+                        continue  # done, or drawn at a placement the episode has given up
                     if not valid[n]:
                         misses[e] += 1
-                        if misses[e] >= MAX_MISSES_IN_A_ROW:
+                        if misses[e] >= MAX_MISSES_IN_A_ROW and placement[e] + 1 < MAX_PLACEMENTS:
+                            # The gripper can (almost) not grasp it so: start the episode again elsewhere.
+                            placement[e], misses[e] = placement[e] + 1, 0
+                            bar.update(-len(kept[e]))
+                            kept[e] = []
+                        elif misses[e] >= MAX_MISSES_IN_A_ROW:
                             bar.close()
                             raise ValueError(
                                 f"{obj.name}: {misses[e]} grasps in a row missed the object or collided "
-                                f"with it (episode {e}); is it wider than the open gripper "
-                                f"({config.max_opening_mm} mm) or deeper than the gel?")
+                                f"with it (episode {e}, placement {placement[e] + 1}); is it wider than the "
+                                f"open gripper ({config.max_opening_mm} mm) or deeper than the gel?")
                         continue
                     misses[e] = 0
                     kept[e].append({name: values[n] for name, values in records.items()})

@@ -202,3 +202,17 @@ def test_bad_protocols_are_refused():
     for protocol in (GraspsProtocol(fingers=3), GraspsProtocol(episodes=0), GraspsProtocol(turns_deg=())):
         with pytest.raises(ValueError):
             grasps_plan(jax.random.key(0), cylinder, protocol)
+
+
+def test_an_episode_redraws_a_placement_the_gripper_cannot_grasp(small_spec):
+    # A 60 mm gripper closes on the gum box across its 23 mm (turn 0) but not along its 81 mm
+    # (turn 90): an episode that drew turn 90 draws again instead of giving up (issue 28).
+    from tactojax.simulate._protocols import grasp_candidates
+
+    protocol = GraspsProtocol(episodes=4, grasps_per_episode=1, turns_deg=(0.0, 90.0))
+    obj = get_object("gum_box")
+    first = grasp_candidates(jax.random.split(jax.random.key(0))[0], obj, protocol, np.arange(4), np.zeros(4))
+    assert np.any(np.isclose(np.rad2deg(np.asarray(first.turn_rad)), 90.0))  # some episode drew the bad turn
+    records = simulate(small_spec, protocol, obj="gum_box", config=GraspConfig(max_opening_mm=60.0))
+    assert np.allclose(np.rad2deg(records["turn_rad"]), 0.0) and len(records["turn_rad"]) == 4
+    assert np.array_equal(np.unique(records["episode"]), np.arange(4))
