@@ -68,6 +68,12 @@ def run_new_grasps(args) -> int:
                      "-" if b["predicted"] is None else b["predicted"], "-" if b["observed"] is None else b["observed"]]
                     for name, table in calibrations.items() for b in table["bins"]]
         print(format_table(["object", "bin", "count", "predicted", "observed"], cal_rows))
+        chance_rows = [[name, table["max_gap_binned"], table["calibrated_max_gap_95"], table["calibrated_p"]]
+                       for name, table in calibrations.items() if table["max_gap_binned"] is not None]
+        if chance_rows:
+            print("\nlargest gap over the bins of >= 10 beliefs, against what a calibrated belief shows by chance")
+            print(format_table(["object", "gap", "calibrated: 95 % of gaps below", "P(gap this large | calibrated)"],
+                               chance_rows))
     save_png(new_grasps_figure(curves, calibrations), args.figure)
     print(f"figure: {args.figure}")
     if args.json:

@@ -95,8 +95,28 @@ class EpisodeErrors:
         return out
 
 
-def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BINS) -> dict:
-    """Reliability: per bin of predicted probability, its mean and the observed share."""
+MIN_BIN_COUNT = 10
+"""Bins of predicted probability holding fewer beliefs than this are left out of the gaps."""
+
+
+def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BINS, *,
+                min_count: int = MIN_BIN_COUNT, draws: int = 2000) -> dict:
+    """Reliability: per bin of predicted probability, its mean and the observed share; the
+    largest gap between them; and what that gap would be by chance alone.
+
+    With a few dozen beliefs per bin, even a perfectly calibrated predictor shows gaps of
+    0.1 or more. So the outcomes are also drawn ``draws`` times as a calibrated predictor would
+    see them (each belief right with its own predicted probability; a fixed seed), and the
+    largest gap over the bins holding ``min_count`` beliefs is compared with those draws.
+
+    Returns:
+        ``bins`` (bin, count, predicted, observed), ``max_gap`` (over every non-empty bin),
+        ``max_gap_binned`` (over the bins holding ``min_count`` or more; None if none),
+        ``calibrated_max_gap_95`` (the 95th percentile of that gap for a calibrated predictor
+        with the same predictions), ``calibrated_p`` (the share of those draws whose gap is as
+        large as the observed one: small means miscalibrated), and ``brier``.
+    """
+    predicted, happened = np.asarray(predicted, np.float64), np.asarray(happened, bool)
     index = np.clip(np.digitize(predicted, bins[1:-1]), 0, len(bins) - 2)
     rows = []
     for b in range(len(bins) - 1):
@@ -105,8 +125,19 @@ def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BI
                      "predicted": float(predicted[inside].mean()) if inside.any() else None,
                      "observed": float(happened[inside].mean()) if inside.any() else None})
     gaps = [abs(r["predicted"] - r["observed"]) for r in rows if r["count"]]
-    return {"bins": rows, "max_gap": float(max(gaps)) if gaps else None,
-            "brier": float(np.mean((predicted - happened) ** 2))}
+    out = {"bins": rows, "max_gap": float(max(gaps)) if gaps else None, "max_gap_binned": None,
+           "calibrated_max_gap_95": None, "calibrated_p": None,
+           "brier": float(np.mean((predicted - happened) ** 2)) if len(predicted) else None}
+    full = [b for b, r in enumerate(rows) if r["count"] >= min_count]
+    if full:
+        members = np.stack([index == b for b in full]).astype(np.float64)  # (B, N)
+        mean_predicted = members @ predicted / members.sum(axis=1)
+        observed_gap = float(np.max(np.abs(members @ happened / members.sum(axis=1) - mean_predicted)))
+        outcomes = np.random.default_rng(0).random((draws, len(predicted))) < predicted  # (draws, N)
+        chance = np.max(np.abs(outcomes @ members.T / members.sum(axis=1) - mean_predicted), axis=1)
+        out.update(max_gap_binned=observed_gap, calibrated_max_gap_95=float(np.percentile(chance, 95)),
+                   calibrated_p=float(np.mean(chance >= observed_gap - 1e-12)))
+    return out
 
 
 def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3):

@@ -52,3 +52,25 @@ def test_nothing_to_fit_is_a_clear_error():
     records = records.replace(valid=np.zeros_like(records.valid))
     with pytest.raises(ValueError, match="no calibration touch"):
         fit_calibration(records)
+
+
+def test_reliability_tells_chance_gaps_from_miscalibration():
+    """A calibrated predictor's largest bin gap is within what chance gives it; an overconfident
+    one's is not. The bins match a direct count."""
+    from tactojax.localize._new_grasps import calibration
+
+    rng = np.random.default_rng(1)
+    predicted = rng.random(400)
+    honest = calibration(predicted, rng.random(400) < predicted)
+    overconfident = calibration(predicted, rng.random(400) < 0.5 * predicted)
+    assert honest["calibrated_p"] > 0.05 and honest["max_gap_binned"] <= honest["calibrated_max_gap_95"] + 1e-9
+    assert overconfident["calibrated_p"] < 0.01 and overconfident["max_gap_binned"] > 0.15
+    happened = rng.random(400) < predicted
+    table = calibration(predicted, happened)
+    for row in table["bins"]:
+        lo, hi = row["bin"]
+        inside = (predicted >= lo) & ((predicted < hi) if hi < 1.0 else (predicted <= hi))
+        assert row["count"] == inside.sum()
+        assert row["observed"] == pytest.approx(happened[inside].mean())
+    few = calibration(predicted[:5], happened[:5])
+    assert few["max_gap_binned"] is None and few["calibrated_p"] is None
