@@ -88,7 +88,7 @@ def write_json(path: str | os.PathLike[str], payload: dict[str, Any]) -> None:
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
-        from tactojax.io._atomic import atomic_write_bytes
+        from tactojax.storage._atomic import atomic_write_bytes
     except ImportError:  # older tactojax: a plain write
         target.write_bytes(data)
     else:

@@ -16,9 +16,8 @@ def calibration_dataset(tmp_path_factory, small_spec):
     """A small simulated calibration dataset: 3 calibration shapes x 40 touches at 60 x 80 px."""
     import jax
 
-    from tactojax.io import simulate_to_dataset
     from tactojax.objects import get_object
-    from tactojax.simulate import CalibrationProtocol
+    from tactojax.simulate import CalibrationProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "calibration"
     for index, name in enumerate(["calib_sphere", "calib_semicone_1", "calib_semipyramid"]):
@@ -49,9 +48,8 @@ def mapping_dataset(tmp_path_factory, small_spec):
     """A small mapping-protocol dataset of the Table II cylinder: 20 mm grid, yaw 0, all 4 turns."""
     import jax
 
-    from tactojax.io import simulate_to_dataset
     from tactojax.objects import get_object
-    from tactojax.simulate import MappingProtocol
+    from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "mapping"
     simulate_to_dataset(path, jax.random.key(0), small_spec, get_object("cylinder"),
@@ -77,10 +75,10 @@ def gum_box_map(tmp_path_factory, small_spec, lookup_model):
     """A second object's map for identification: the gum box, 30 mm grid, yaw 0, all 4 turns."""
     import jax
 
-    from tactojax.io import read_grasps, simulate_to_dataset
+    from tactojax.io import read_grasps
     from tactojax.mapping import build_tactile_map
     from tactojax.objects import get_object
-    from tactojax.simulate import MappingProtocol
+    from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "gum_box"
     simulate_to_dataset(path, jax.random.key(1), small_spec, get_object("gum_box"),

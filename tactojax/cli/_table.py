@@ -23,7 +23,7 @@ def _cell(value) -> str:
 
 def write_json(path: str | Path, payload: dict) -> None:
     """Write ``payload`` as JSON atomically (no half-written file on a crash)."""
-    from tactojax.io._atomic import atomic_write_bytes
+    from tactojax.storage import atomic_write_bytes
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -48,6 +48,7 @@ from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
 from tactojax.localize._new_grasps import TestEpisodes as TestEpisodes
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._pose import PoseEstimate as PoseEstimate
+from tactojax.localize._test_episodes import load_test_episodes as load_test_episodes
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
@@ -80,6 +81,7 @@ __all__ = [
     "fit_calibration",
     "identify",
     "identify_episodes",
+    "load_test_episodes",
     "localize",
     "localize_baseline",
     "map_size_study",
