@@ -1,8 +1,42 @@
-"""Shared fixtures: one small sensor so that jitted functions compile once per session."""
+"""Shared fixtures: one small sensor so that jitted functions compile once per session.
 
+Most of the suite's time is XLA compilation, and the same programs come back: in both xdist
+workers (each builds the session fixtures), and wherever a command or a test jits a new closure
+of the same computation. One compilation cache for the run serves them all: a temporary folder
+made by the controller (every run starts cold, so timings stay honest), or the folder in
+``TACTOJAX_TEST_JAX_CACHE`` if set (kept between runs, e.g. while iterating on one test);
+``TACTOJAX_TEST_JAX_CACHE=off`` compiles everything afresh.
+"""
+
+import os
+import tempfile
+
+import jax
 import pytest
 
 from tactojax.sensor import gelslim
+
+_CACHE_VARIABLE = "TACTOJAX_TEST_JAX_CACHE"
+
+
+def pytest_configure(config):
+    """Point JAX's persistent compilation cache at one folder shared by the run's processes."""
+    if os.environ.get(_CACHE_VARIABLE) == "off":
+        return
+    if not os.environ.get(_CACHE_VARIABLE):  # the controller (or a run without xdist): workers inherit it
+        os.environ[_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="tactojax-jax-cache-")
+        config.add_cleanup(_remove_cache_folder(os.environ[_CACHE_VARIABLE]))
+    jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def _remove_cache_folder(path):
+    def remove():
+        import shutil
+
+        os.environ.pop(_CACHE_VARIABLE, None)
+        shutil.rmtree(path, ignore_errors=True)
+    return remove
 
 
 @pytest.fixture(scope="session")

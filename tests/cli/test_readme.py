@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from tactojax.cli import main
@@ -150,6 +151,7 @@ def test_readme_lists_the_commands_it_runs():
     assert set(SMALLER) | set(SLOW) <= {argv[0] for argv in commands}
 
 
+@pytest.mark.slow  # ~50 s on 2 quiet cores, mostly compiling what tests/cli runs command by command; -m slow runs it
 def test_readme_command_list_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     run_all = os.environ.get("TACTOJAX_README_ALL") == "1"
