@@ -8,17 +8,22 @@ asynchronous dispatch does not hide work.
 
 from __future__ import annotations
 
-import json
+import functools
 import os
 import platform
 import statistics
 import sys
 import time
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import jax
+
+from tactojax.cli import format_table as _format_table
+from tactojax.cli import write_json as write_json
+
+format_table = functools.partial(_format_table, significant=3)
+"""The CLI's table, floats with 3 significant digits (timings span seconds to microseconds)."""
 
 
 def machine_info() -> dict[str, Any]:
@@ -65,31 +70,3 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int) -> dict[str, flo
         "min_s": min(steady),
         "repeats": len(steady),
     }
-
-
-def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """A plain-text table with columns aligned (floats get 3 significant digits)."""
-
-    def cell(value: Any) -> str:
-        if isinstance(value, float):
-            return f"{value:.3g}" if abs(value) < 1e4 else f"{value:.0f}"
-        return "-" if value is None else str(value)
-
-    text = [[str(h) for h in headers]] + [[cell(v) for v in row] for row in rows]
-    widths = [max(len(line[i]) for line in text) for i in range(len(headers))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in text]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    return "\n".join(lines)
-
-
-def write_json(path: str | os.PathLike[str], payload: dict[str, Any]) -> None:
-    """Write ``payload`` as indented JSON, atomically where tactojax provides the helper."""
-    data = (json.dumps(payload, indent=2, sort_keys=False) + "\n").encode("utf-8")
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        from tactojax.io._atomic import atomic_write_bytes
-    except ImportError:  # older tactojax: a plain write
-        target.write_bytes(data)
-    else:
-        atomic_write_bytes(target, data)

@@ -23,7 +23,8 @@ try:
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, write_json
 
-from tactojax.io import DEFAULT_ENCODER, load_localization_map, load_test_episodes, resolve_encoder, resolve_shape_model
+from tactojax.io import DEFAULT_ENCODER, load_localization_map, resolve_encoder, resolve_shape_model
+from tactojax.localize import load_test_episodes
 from tactojax.localize import (ActiveSettings, BeliefSettings, Touch, empty_belief, map_marching_grid, next_grasp,
                                propose_grasps, update_belief)
 

@@ -34,10 +34,9 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, write_json
 
 from tactojax.features import encode_images
-from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, load_test_episodes, resolve_encoder, resolve_shape_model,
-                         tactile_map_metadata)
+from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, resolve_shape_model, tactile_map_metadata
 from tactojax.localize import (BeliefSettings, LocalizationMap, Touch, calibration_from_json, empty_belief,
-                               localize_baseline, update_belief)
+                               load_test_episodes, localize_baseline, update_belief)
 
 
 def _seconds(call) -> tuple[float, object]:

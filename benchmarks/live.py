@@ -46,14 +46,14 @@ from tactojax.features import encode_image, encode_images
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
 from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, read_grasps, read_test_grasps, resolve_encoder,
-                         resolve_shape_model, simulate_to_dataset, tactile_map_metadata)
+                         resolve_shape_model, tactile_map_metadata)
 from tactojax.localize import (BeliefSettings, LocalizationMap, Localizer, Touch, calibration_from_json,
                                localize)
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
-from tactojax.simulate import GraspsProtocol, MappingProtocol
+from tactojax.simulate import GraspsProtocol, MappingProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/live.py`` or as a module
     from benchmarks._common import format_table, machine_info, write_json

@@ -40,13 +40,13 @@ try:
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, time_call, write_json
 
-from tactojax.io import load_shape_data, load_shape_model, shape_model_metadata, simulate_to_dataset
+from tactojax.io import load_shape_data, load_shape_model, shape_model_metadata
 from tactojax.objects import CALIBRATION_SHAPES, get_object
 from tactojax.sensor import sensor_preset
 from tactojax.shape import (TrainConfig, balanced_subset, build_network, evaluate_shape_model,
                             fit_lookup_model, flops_per_pixel, init_shape_model, predict_batch,
                             robustness_study, split_held_out, summarize_errors, train_shape_model)
-from tactojax.simulate import CalibrationProtocol
+from tactojax.simulate import CalibrationProtocol, simulate_to_dataset
 
 
 def simulate_calibration(work: Path, sensor: str, scale: float, touches: int) -> Path:

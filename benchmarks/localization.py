@@ -33,8 +33,7 @@ from tqdm.auto import tqdm
 
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_image, encode_images
-from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, resolve_encoder,
-                         resolve_shape_model, simulate_to_dataset, read_grasps)
+from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, resolve_shape_model, read_grasps
 from tactojax.localize import IcpSettings, LocalizationMap, localize_baseline
 # The stages of the baseline, timed apart and handed to Open3D (not the public API):
 from tactojax.localize._baselines import estimate_pose, parse_method
@@ -45,7 +44,7 @@ from tactojax.mapping import build_tactile_map
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
-from tactojax.simulate import MappingProtocol
+from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/localization.py`` or as a module
     from benchmarks._common import machine_info, write_json

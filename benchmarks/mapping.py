@@ -35,13 +35,13 @@ try:
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
     from _common import format_table, machine_info, write_json
 
-from tactojax.io import read_grasps, resolve_shape_model, simulate_to_dataset
+from tactojax.io import read_grasps, resolve_shape_model
 from tactojax.mapping import (NOISE_LEVELS, build_tactile_map, fit_shape_to_clouds, perturb_kinematics,
                               shape_fit_clouds, shape_fit_errors, stitched_point_cloud, surface_distance,
                               true_shape_parameters)
 from tactojax.objects import TABLE2_SHAPES, get_object
 from tactojax.sensor import sensor_preset
-from tactojax.simulate import MappingProtocol
+from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
 SHAPE_KIND = {"cylinder": "cylinder", "semicone": "semicone", "double_cylinder": "double-cylinder",
               "cuboid": "cuboid", "semipyramid": "semipyramid"}

@@ -45,15 +45,15 @@ from tqdm.auto import tqdm
 from tactojax._compilation import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
-from tactojax.io import (DEFAULT_ENCODER, load_test_episodes, open_dataset, read_grasps, read_test_grasps,
-                         resolve_encoder, resolve_shape_model, simulate_to_dataset)
-from tactojax.localize import LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize
-from tactojax.localize import LiveSettings
+from tactojax.io import (DEFAULT_ENCODER, open_dataset, read_grasps, read_test_grasps, resolve_encoder,
+                         resolve_shape_model)
+from tactojax.localize import (LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings,
+                               load_test_episodes, localize)
 from tactojax.mapping import build_tactile_map, observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
-from tactojax.simulate import GraspsProtocol, MappingProtocol, SlipProtocol
+from tactojax.simulate import GraspsProtocol, MappingProtocol, SlipProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/tracking.py`` or as a module
     from benchmarks._common import format_table, machine_info, write_json

@@ -1,8 +1,16 @@
 """tactojax: tactile mapping and localization from high-resolution tactile imprints, in JAX.
 
-Pipeline stages (one subpackage each): ``sensor`` (specs, contact, optics), ``geometry``
-(heightmaps -> points, kinematics), ``objects`` (analytic shapes and meshes), ``simulate``
-(grasps and exploration protocols), ``io`` (all disk I/O), ``cli``.
+Layers, bottom to top; each imports only those below it, also inside functions (``lint-imports``
+checks the contract in ``pyproject.toml``; details in :mod:`tactojax.storage`):
+
+- ``storage``: file formats (atomic writes, datasets, meshes, taxim packs, torch weights,
+  checkpoint containers); imports no stage.
+- the stages, in order: ``geometry`` (heightmaps -> points, kinematics), ``sensor`` (specs,
+  contact, optics), ``objects`` (analytic shapes and meshes), ``simulate`` (grasps, protocols,
+  datasets), ``shape`` (image -> heightmap), ``mapping`` (tactile maps), ``features`` (encoders),
+  ``localize`` (pose beliefs, evaluation).
+- ``io``: stage-specific load and save, and every public file function in one place.
+- ``hardware`` and ``viz``, then ``cli``.
 """
 
 from tactojax.sensor import Imprint as Imprint

@@ -1,8 +1,42 @@
-"""Shared fixtures: one small sensor so that jitted functions compile once per session."""
+"""Shared fixtures: one small sensor so that jitted functions compile once per session.
 
+Most of the suite's time is XLA compilation, and the same programs come back: in both xdist
+workers (each builds the session fixtures), and wherever a command or a test jits a new closure
+of the same computation. One compilation cache for the run serves them all: a temporary folder
+made by the controller (every run starts cold, so timings stay honest), or the folder in
+``TACTOJAX_TEST_JAX_CACHE`` if set (kept between runs, e.g. while iterating on one test);
+``TACTOJAX_TEST_JAX_CACHE=off`` compiles everything afresh.
+"""
+
+import os
+import tempfile
+
+import jax
 import pytest
 
 from tactojax.sensor import gelslim
+
+_CACHE_VARIABLE = "TACTOJAX_TEST_JAX_CACHE"
+
+
+def pytest_configure(config):
+    """Point JAX's persistent compilation cache at one folder shared by the run's processes."""
+    if os.environ.get(_CACHE_VARIABLE) == "off":
+        return
+    if not os.environ.get(_CACHE_VARIABLE):  # the controller (or a run without xdist): workers inherit it
+        os.environ[_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="tactojax-jax-cache-")
+        config.add_cleanup(_remove_cache_folder(os.environ[_CACHE_VARIABLE]))
+    jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def _remove_cache_folder(path):
+    def remove():
+        import shutil
+
+        os.environ.pop(_CACHE_VARIABLE, None)
+        shutil.rmtree(path, ignore_errors=True)
+    return remove
 
 
 @pytest.fixture(scope="session")
@@ -16,9 +50,8 @@ def calibration_dataset(tmp_path_factory, small_spec):
     """A small simulated calibration dataset: 3 calibration shapes x 40 touches at 60 x 80 px."""
     import jax
 
-    from tactojax.io import simulate_to_dataset
     from tactojax.objects import get_object
-    from tactojax.simulate import CalibrationProtocol
+    from tactojax.simulate import CalibrationProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "calibration"
     for index, name in enumerate(["calib_sphere", "calib_semicone_1", "calib_semipyramid"]):
@@ -49,9 +82,8 @@ def mapping_dataset(tmp_path_factory, small_spec):
     """A small mapping-protocol dataset of the Table II cylinder: 20 mm grid, yaw 0, all 4 turns."""
     import jax
 
-    from tactojax.io import simulate_to_dataset
     from tactojax.objects import get_object
-    from tactojax.simulate import MappingProtocol
+    from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "mapping"
     simulate_to_dataset(path, jax.random.key(0), small_spec, get_object("cylinder"),
@@ -77,10 +109,10 @@ def gum_box_map(tmp_path_factory, small_spec, lookup_model):
     """A second object's map for identification: the gum box, 30 mm grid, yaw 0, all 4 turns."""
     import jax
 
-    from tactojax.io import read_grasps, simulate_to_dataset
+    from tactojax.io import read_grasps
     from tactojax.mapping import build_tactile_map
     from tactojax.objects import get_object
-    from tactojax.simulate import MappingProtocol
+    from tactojax.simulate import MappingProtocol, simulate_to_dataset
 
     path = tmp_path_factory.mktemp("data") / "gum_box"
     simulate_to_dataset(path, jax.random.key(1), small_spec, get_object("gum_box"),

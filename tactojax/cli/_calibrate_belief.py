@@ -31,7 +31,8 @@ def add_parser(commands) -> None:
 
 def _episodes_of(object_id: str, directories, model, encoder):
     """The calibration episodes of ``object_id`` from the first directory that holds it."""
-    from tactojax.io import load_test_episodes, read_test_grasps
+    from tactojax.io import read_test_grasps
+    from tactojax.localize import load_test_episodes
 
     for directory in directories:
         try:

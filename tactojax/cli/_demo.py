@@ -96,10 +96,10 @@ def _local_shape(args, spec, model, out: Path) -> dict:
     import numpy as np
 
     from tactojax.cli._shape_report import print_shape_report
-    from tactojax.io import load_shape_data, simulate_to_dataset
+    from tactojax.io import load_shape_data
     from tactojax.objects import CALIBRATION_SHAPES, get_object
     from tactojax.shape import evaluate_shape_model, predict_batch
-    from tactojax.simulate import CalibrationProtocol
+    from tactojax.simulate import CalibrationProtocol, simulate_to_dataset
     from tactojax.viz import shape_examples_figure
 
     path = out / "datasets" / "calibration"
@@ -123,10 +123,10 @@ def _local_shape(args, spec, model, out: Path) -> dict:
 def _maps(args, spec, model, encoder, out: Path):
     """Section V: simulate the mapping protocol, build each map from predicted heightmaps."""
     from tactojax.features import encode_images
-    from tactojax.io import open_dataset, read_grasps, save_tactile_map, simulate_to_dataset
+    from tactojax.io import open_dataset, read_grasps, save_tactile_map
     from tactojax.mapping import build_tactile_map, stitched_point_cloud, surface_distance
     from tactojax.objects import get_object
-    from tactojax.simulate import MappingProtocol
+    from tactojax.simulate import MappingProtocol, simulate_to_dataset
     from tactojax.viz import imprint_figure, tactile_map_figure
 
     protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg))
@@ -214,10 +214,9 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     """Beyond the paper: the pose belief on new grasps, fused over the grasps of each episode."""
     import numpy as np
 
-    from tactojax.io import load_test_episodes, simulate_to_dataset
-    from tactojax.localize import LocalizationMap, Touch, localize
+    from tactojax.localize import LocalizationMap, Touch, load_test_episodes, localize
     from tactojax.objects import get_object
-    from tactojax.simulate import GraspsProtocol
+    from tactojax.simulate import GraspsProtocol, simulate_to_dataset
     from tactojax.viz import belief_figure, save_png
 
     if args.episodes < 1 or args.grasps < 1:

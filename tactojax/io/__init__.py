@@ -1,28 +1,22 @@
-"""All disk I/O: taxim calibrations, meshes, datasets."""
+"""Disk I/O for users: everything tactojax reads and writes, from one place.
 
-from tactojax.io._dataset import CorruptDatasetError as CorruptDatasetError
-from tactojax.io._dataset import Dataset as Dataset
-from tactojax.io._dataset import DatasetLockedError as DatasetLockedError
-from tactojax.io._dataset import DatasetWriter as DatasetWriter
-from tactojax.io._dataset import dataset_summary as dataset_summary
-from tactojax.io._dataset import infer_schema as infer_schema
-from tactojax.io._dataset import open_dataset as open_dataset
-from tactojax.io._dataset import ChunkProblem as ChunkProblem
-from tactojax.io._dataset import CorruptChunkError as CorruptChunkError
-from tactojax.io._dataset_repair import DatasetRepair as DatasetRepair
-from tactojax.io._dataset_repair import repair_dataset as repair_dataset
-from tactojax.io._imprints import sensor_metadata as sensor_metadata
+Stage-specific load and save live here (shape models, encoders, tactile and localization maps,
+imprint batches, ball presses, touches); the file formats under them (datasets, meshes, taxim
+packs, torch weights, checkpoints, test sets as arrays) live in :mod:`tactojax.storage` and are
+re-exported. This layer sits above the stages: no stage imports it (see ``tactojax.storage``).
+"""
+
+import warnings as _warnings
+
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
+from tactojax.io._encoder import DEFAULT_ENCODER as DEFAULT_ENCODER
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
 from tactojax.io._encoder import load_encoder_train_state as load_encoder_train_state
-from tactojax.io._encoder import DEFAULT_ENCODER as DEFAULT_ENCODER
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
-from tactojax.io._imprints import dataset_metadata as dataset_metadata
 from tactojax.io._imprints import load_imprints as load_imprints
-from tactojax.io._imprints import simulate_to_dataset as simulate_to_dataset
 from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
@@ -30,16 +24,7 @@ from tactojax.io._map import load_tactile_map as load_tactile_map
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
 from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
-from tactojax.io._mesh import InvalidMeshError as InvalidMeshError
-from tactojax.io._mesh import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
-from tactojax.io._mesh import check_mesh as check_mesh
-from tactojax.io._mesh import load_mesh as load_mesh
-from tactojax.io._mesh import ycb_mesh_path as ycb_mesh_path
-from tactojax.io._mesh_repair import MeshRepair as MeshRepair
-from tactojax.io._mesh_repair import MeshRepairedWarning as MeshRepairedWarning
-from tactojax.io._mesh_repair import repair_mesh as repair_mesh
 from tactojax.io._presses import load_ball_presses as load_ball_presses
-from tactojax.io._shape import CorruptCheckpointError as CorruptCheckpointError
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
 from tactojax.io._shape import load_shape_data as load_shape_data
 from tactojax.io._shape import load_shape_model as load_shape_model
@@ -49,75 +34,109 @@ from tactojax.io._shape import save_shape_model as save_shape_model
 from tactojax.io._shape import save_train_state as save_train_state
 from tactojax.io._shape import shape_model_metadata as shape_model_metadata
 from tactojax.io._touches import load_touches as load_touches
-from tactojax.io._test_grasps import load_test_episodes as load_test_episodes
-from tactojax.io._test_grasps import read_test_grasps as read_test_grasps
-from tactojax.io._taxim import TAXIM_SENSORS as TAXIM_SENSORS
-from tactojax.io._taxim import MissingDataPackageError as MissingDataPackageError
-from tactojax.io._taxim import TaximCalibration as TaximCalibration
-from tactojax.io._taxim import load_taxim_calibration as load_taxim_calibration
-from tactojax.io._taxim import taxim_calibration_dir as taxim_calibration_dir
-from tactojax.io._torch_weights import CorruptTorchCheckpointError as CorruptTorchCheckpointError
-from tactojax.io._torch_weights import UnsafeCheckpointError as UnsafeCheckpointError
-from tactojax.io._torch_weights import load_torch_state_dict as load_torch_state_dict
+from tactojax.storage import CorruptCheckpointError as CorruptCheckpointError
+from tactojax.storage import ChunkProblem as ChunkProblem
+from tactojax.storage import CorruptChunkError as CorruptChunkError
+from tactojax.storage import CorruptDatasetError as CorruptDatasetError
+from tactojax.storage import Dataset as Dataset
+from tactojax.storage import dataset_summary as dataset_summary
+from tactojax.storage import DatasetLockedError as DatasetLockedError
+from tactojax.storage import DatasetWriter as DatasetWriter
+from tactojax.storage import infer_schema as infer_schema
+from tactojax.storage import open_dataset as open_dataset
+from tactojax.storage import DatasetRepair as DatasetRepair
+from tactojax.storage import repair_dataset as repair_dataset
+from tactojax.storage import check_mesh as check_mesh
+from tactojax.storage import InvalidMeshError as InvalidMeshError
+from tactojax.storage import load_mesh as load_mesh
+from tactojax.storage import MESH_UNITS_TO_MM as MESH_UNITS_TO_MM
+from tactojax.storage import ycb_mesh_path as ycb_mesh_path
+from tactojax.storage import MeshRepair as MeshRepair
+from tactojax.storage import MeshRepairedWarning as MeshRepairedWarning
+from tactojax.storage import repair_mesh as repair_mesh
+from tactojax.storage import load_taxim_calibration as load_taxim_calibration
+from tactojax.storage import MissingDataPackageError as MissingDataPackageError
+from tactojax.storage import taxim_calibration_dir as taxim_calibration_dir
+from tactojax.storage import TAXIM_SENSORS as TAXIM_SENSORS
+from tactojax.storage import TaximCalibration as TaximCalibration
+from tactojax.storage import read_test_grasps as read_test_grasps
+from tactojax.storage import CorruptTorchCheckpointError as CorruptTorchCheckpointError
+from tactojax.storage import load_torch_state_dict as load_torch_state_dict
+from tactojax.storage import UnsafeCheckpointError as UnsafeCheckpointError
+
+_MOVED = {
+    "dataset_metadata": "tactojax.simulate",
+    "load_test_episodes": "tactojax.localize",
+    "sensor_metadata": "tactojax.simulate",
+    "simulate_to_dataset": "tactojax.simulate",
+}
+"""Names that moved to their stage: ``tactojax.io.NAME`` still works, with a DeprecationWarning."""
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
+
+        _warnings.warn(f"tactojax.io.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next release",
+                       DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module 'tactojax.io' has no attribute {name!r}")
+
 
 __all__ = [
-    "CorruptDatasetError",
-    "Dataset",
-    "DatasetLockedError",
-    "DatasetWriter",
     "bundled_encoders",
+    "bundled_shape_models",
+    "check_mesh",
+    "ChunkProblem",
+    "CorruptCheckpointError",
+    "CorruptChunkError",
+    "CorruptDatasetError",
+    "CorruptMapError",
+    "CorruptTorchCheckpointError",
+    "Dataset",
+    "dataset_summary",
+    "DatasetLockedError",
+    "DatasetRepair",
+    "DatasetWriter",
+    "DEFAULT_ENCODER",
     "encoder_metadata",
+    "export_ply",
+    "infer_schema",
+    "InvalidMeshError",
+    "load_ball_presses",
     "load_encoder",
     "load_encoder_train_state",
-    "load_touches",
-    "resolve_encoder",
-    "DEFAULT_ENCODER",
-    "save_encoder",
-    "save_encoder_train_state",
-    "sensor_metadata",
-    "dataset_metadata",
-    "dataset_summary",
-    "infer_schema",
     "load_imprints",
-    "open_dataset",
-    "ChunkProblem",
-    "CorruptChunkError",
-    "DatasetRepair",
-    "repair_dataset",
-    "simulate_to_dataset",
-    "CorruptMapError",
-    "export_ply",
     "load_localization_map",
-    "load_tactile_map",
-    "read_grasps",
-    "load_test_episodes",
-    "read_test_grasps",
-    "save_tactile_map",
-    "tactile_map_metadata",
-    "InvalidMeshError",
-    "MESH_UNITS_TO_MM",
-    "check_mesh",
     "load_mesh",
-    "ycb_mesh_path",
-    "MeshRepair",
-    "MeshRepairedWarning",
-    "repair_mesh",
-    "load_ball_presses",
-    "CorruptCheckpointError",
-    "bundled_shape_models",
     "load_shape_data",
     "load_shape_model",
+    "load_tactile_map",
+    "load_taxim_calibration",
+    "load_torch_state_dict",
+    "load_touches",
     "load_train_state",
+    "MESH_UNITS_TO_MM",
+    "MeshRepair",
+    "MeshRepairedWarning",
+    "MissingDataPackageError",
+    "open_dataset",
+    "read_grasps",
+    "read_test_grasps",
+    "repair_dataset",
+    "repair_mesh",
+    "resolve_encoder",
     "resolve_shape_model",
+    "save_encoder",
+    "save_encoder_train_state",
     "save_shape_model",
+    "save_tactile_map",
     "save_train_state",
     "shape_model_metadata",
-    "TAXIM_SENSORS",
-    "MissingDataPackageError",
-    "TaximCalibration",
-    "load_taxim_calibration",
+    "tactile_map_metadata",
     "taxim_calibration_dir",
-    "CorruptTorchCheckpointError",
+    "TAXIM_SENSORS",
+    "TaximCalibration",
     "UnsafeCheckpointError",
-    "load_torch_state_dict",
+    "ycb_mesh_path",
 ]

@@ -24,8 +24,8 @@ from flax import serialization
 
 from tactojax.features._contrastive import ContrastiveConfig, ContrastiveState
 from tactojax.features._encoder import ARCHITECTURES, Encoder, build_encoder
-from tactojax.io._atomic import atomic_write_bytes
-from tactojax.io._shape import BUNDLED_DIR, CorruptCheckpointError, read_checkpoint_payload
+from tactojax.storage._atomic import atomic_write_bytes
+from tactojax.storage._checkpoint import BUNDLED_DIR, CorruptCheckpointError, read_checkpoint_payload
 
 ENCODER_FORMAT = "tactojax-feature-encoder"
 ENCODER_VERSION = 1

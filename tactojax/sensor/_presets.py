@@ -97,7 +97,7 @@ def _gelslim_optics(height_px: int, width_px: int) -> PhotometricOptics:
 
 @functools.lru_cache(maxsize=8)
 def _taxim_preset(name: str, *, scale: float, noise_std: float) -> SensorSpec:
-    from tactojax.io import load_taxim_calibration
+    from tactojax.storage import load_taxim_calibration
 
     calibration = load_taxim_calibration(name)
     full_height, full_width = calibration.background_rgb.shape[:2]

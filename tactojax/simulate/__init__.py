@@ -1,5 +1,8 @@
-"""Simulation: grasps and touches of objects, and the paper's exploration protocols."""
+"""Simulation: grasps and touches of objects, the paper's exploration protocols, and their datasets."""
 
+from tactojax.simulate._dataset import dataset_metadata as dataset_metadata
+from tactojax.simulate._dataset import sensor_metadata as sensor_metadata
+from tactojax.simulate._dataset import simulate_to_dataset as simulate_to_dataset
 from tactojax.simulate._grasp import GraspConfig as GraspConfig
 from tactojax.simulate._grasp import GraspResult as GraspResult
 from tactojax.simulate._grasp import simulate_grasps as simulate_grasps
@@ -27,7 +30,8 @@ from tactojax.simulate._touch import touch as touch
 
 __all__ = [
     "CalibrationProtocol", "GraspCandidates", "GraspConfig", "GraspPlan", "GraspResult", "GraspsProtocol",
-    "MappingProtocol", "SlipProtocol", "SlipWalk", "TouchPlan", "calibration_plan", "cast_rays", "grasps_plan",
-    "mapping_grid_for", "mapping_plan", "pad_rays", "plan_protocol", "protocol_fields", "simulate_grasps",
-    "simulate_protocol", "simulate_two_sensor_grasps", "slip_offsets", "slipped_grippers", "touch",
+    "MappingProtocol", "SlipProtocol", "SlipWalk", "TouchPlan", "calibration_plan", "cast_rays", "dataset_metadata",
+    "grasps_plan", "mapping_grid_for", "mapping_plan", "pad_rays", "plan_protocol", "protocol_fields",
+    "sensor_metadata", "simulate_grasps", "simulate_protocol", "simulate_to_dataset", "simulate_two_sensor_grasps",
+    "slip_offsets", "slipped_grippers", "touch",
 ]

@@ -71,7 +71,7 @@ def simulate_protocol(
     grasps, the first valid candidates of its sequence (ValueError after
     ``MAX_MISSES_IN_A_ROW`` skipped candidates in a row); one record per finger imprint,
     ordered by episode, grasp, finger. ``episode`` counts 0 .. episodes - 1 here (see
-    ``tactojax.io.simulate_to_dataset`` for datasets), ``grasp`` 0 .. grasps_per_episode - 1,
+    ``tactojax.simulate.simulate_to_dataset`` for datasets), ``grasp`` 0 .. grasps_per_episode - 1,
     ``finger`` 0 (sensor jaw) or 1 (opposite jaw, ``fingers=2``). Results are deterministic
     for a key and batch size.
 

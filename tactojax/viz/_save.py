@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tactojax.io._atomic import atomic_open
+from tactojax.storage import atomic_open
 
 
 def save_png(figure, path: str | Path, *, dpi: int = 100) -> Path:

@@ -117,13 +117,14 @@ def test_a_simulation_that_writes_nothing_leaves_no_dataset(tmp_path, capsys, mo
     """A run that fails before its first chunk (e.g. new grasps of a soup can that all miss) says
     why and leaves no empty folder to trip `map` or `train-features` later; a folder that was
     there before is left alone."""
-    import tactojax.io
+    import tactojax.simulate
+    from tactojax.storage import DatasetWriter
 
     def fails_after_opening(path, *args, **kwargs):
-        with tactojax.io.DatasetWriter(path, metadata={}):
+        with DatasetWriter(path, metadata={}):
             raise ValueError("50 grasps in a row missed the object")
 
-    monkeypatch.setattr(tactojax.io, "simulate_to_dataset", fails_after_opening)
+    monkeypatch.setattr(tactojax.simulate, "simulate_to_dataset", fails_after_opening)
     out = tmp_path / "can"
     if existed:
         out.mkdir()

@@ -210,6 +210,7 @@ def readme_folder(tmp_path_factory):
     return folder, results
 
 
+@pytest.mark.slow  # each command is tested in tests/cli; this runs the list as written (-m slow)
 def test_readme_command_list_runs_as_written(readme_folder, capsys):
     _, results = readme_folder
     for argv, code, out, err, _ in results:
@@ -224,6 +225,7 @@ def test_readme_command_list_runs_as_written(readme_folder, capsys):
                 print(f"{seconds:6.1f} s  tactojax {' '.join(argv)}")
 
 
+@pytest.mark.slow
 def test_readme_python_example_runs_as_written(readme_folder, monkeypatch, capsys):
     folder, results = readme_folder
     assert all(code == 0 for _, code, *_ in results), "the README's command list failed (see its test)"

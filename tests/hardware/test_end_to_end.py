@@ -9,11 +9,11 @@ import pytest
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.hardware import Recorder, record_protocol, simulated_cell
-from tactojax.io import load_encoder, open_dataset, read_grasps, simulate_to_dataset
+from tactojax.io import load_encoder, open_dataset, read_grasps
 from tactojax.localize import Localizer
 from tactojax.mapping import build_tactile_map
 from tactojax.objects import get_object
-from tactojax.simulate import MappingProtocol, mapping_plan
+from tactojax.simulate import MappingProtocol, mapping_plan, simulate_to_dataset
 
 PROTOCOL = MappingProtocol(grid_mm=30.0, yaws_deg=(0.0,))
 

