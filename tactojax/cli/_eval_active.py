@@ -159,14 +159,18 @@ def _figure(curves: dict, path: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    from tactojax.viz import save_png
 
     figure, axis = plt.subplots(figsize=(5, 3.5))
     for label, shares in curves.items():
         axis.plot(range(1, len(shares) + 1), [100 * s for s in shares], marker="o", label=label)
     axis.set_xlabel("grasps")
+    axis.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
     axis.set_ylabel("within 2 mm (%)")
     axis.set_ylim(0, 100)
     axis.legend(fontsize=7)
     figure.tight_layout()
-    figure.savefig(path, dpi=120)
+    save_png(figure, path, dpi=120)  # never half-written
     plt.close(figure)
