@@ -30,7 +30,13 @@ def matvec(matrix: Float[Array, "*batch 3 3"], vector: Float[Array, "*batch 3"])
     On CPU this fuses with the neighbouring element-wise work, where a matrix product or a
     reduction of these small shapes would be a kernel of its own (and jaxlie's per-point
     quaternion product is dearer still).
+
+    Raises:
+        ValueError: the matrix is not 3 x 3 or the vector not of length 3 (an out-of-range
+            column would otherwise be clamped silently).
     """
+    if matrix.shape[-2:] != (3, 3) or vector.shape[-1] != 3:
+        raise ValueError(f"matvec needs (..., 3, 3) and (..., 3), got {matrix.shape} and {vector.shape}")
     return sum(matrix[..., i] * vector[..., None, i] for i in range(3))
 
 

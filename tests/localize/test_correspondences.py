@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+import pytest
 
 from tactojax.localize._correspondences import find_correspondences, nearest_correspondences, surface_lookup
 
@@ -143,3 +144,16 @@ def test_nearest_correspondences_match_numpy(bumps_map, bumps_view):
         np.testing.assert_allclose(np.asarray(matches.target[p]), targets[j], atol=1e-5)
         np.testing.assert_allclose(float(matches.residual[p]), normals[j] @ (points[p] - targets[j]), atol=1e-4)
         assert int(matches.candidate[p]) == (0 if j < targets.shape[0] // 2 else 2)
+
+
+def test_matvec_matches_matmul_and_refuses_other_shapes():
+    import jax.numpy as jnp
+
+    from tactojax.localize._correspondences import matvec
+
+    rng = np.random.default_rng(0)
+    matrix, vector = rng.normal(size=(4, 3, 3)), rng.normal(size=(5, 4, 3))
+    np.testing.assert_allclose(np.asarray(matvec(jnp.asarray(matrix), jnp.asarray(vector))),
+                               np.einsum("bij,nbj->nbi", matrix, vector), rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="3, 3"):
+        matvec(jnp.zeros((3, 2)), jnp.zeros(2))
