@@ -484,7 +484,9 @@ def update_belief(
     first = ~jnp.any(belief.touch_valid)
     T_world_reference = jax.tree.map(lambda new, old: jnp.where(first, new, old), T_world_sensor,
                                      belief.T_world_reference)
-    T_reference_touch = T_world_reference.inverse() @ T_world_sensor
+    # The reference touch sits at the identity exactly (not up to float32 rounding of T^-1 T).
+    T_reference_touch = jax.tree.map(lambda identity, relative: jnp.where(first, identity, relative),
+                                     jaxlie.SE3.identity(), T_world_reference.inverse() @ T_world_sensor)
     belief = belief.replace(T_world_reference=T_world_reference)
     belief = remember(belief, evidence, feature, T_reference_touch)
     T_new, new_scores = candidates(view, belief, evidence, feature, opening, T_reference_touch, settings, exclude)
