@@ -47,6 +47,13 @@ def machine_info() -> dict[str, Any]:
     }
 
 
+def seconds_of(call: Callable[[], Any]) -> tuple[float, Any]:
+    """(wall-clock seconds, result) of one ``call()``, its result ready (``block_until_ready``)."""
+    start = time.perf_counter()
+    out = jax.block_until_ready(call())
+    return time.perf_counter() - start, out
+
+
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int) -> dict[str, float]:
     """Time ``fn(*args)``: first call (compile + run) apart from the steady-state median.
 

@@ -19,20 +19,13 @@ import jax
 import numpy as np
 
 try:
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import format_table, machine_info, seconds_of, write_json
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, write_json
+    from _common import format_table, machine_info, seconds_of, write_json
 
 from tactojax.io import DEFAULT_ENCODER, load_localization_map, resolve_encoder, resolve_shape_model
-from tactojax.localize import load_test_episodes
-from tactojax.localize import (ActiveSettings, BeliefSettings, Touch, empty_belief, map_marching_grid, next_grasp,
-                               propose_grasps, update_belief)
-
-
-def _seconds(call) -> tuple[float, object]:
-    start = time.perf_counter()
-    out = jax.block_until_ready(call())
-    return time.perf_counter() - start, out
+from tactojax.localize import (ActiveSettings, BeliefSettings, Touch, empty_belief, load_test_episodes,
+                               map_marching_grid, next_grasp, propose_grasps, update_belief)
 
 
 def main() -> None:
@@ -61,12 +54,12 @@ def main() -> None:
             touch = Touch(heightmap=episodes.heightmaps[e, 0, finger], mask=episodes.masks[e, 0, finger],
                           feature=episodes.features[e, 0, finger], opening=episodes.openings[e, 0])
             T = jax.tree.map(lambda x: x[e, 0, finger], episodes.T_object_sensor)
-            seconds, belief = _seconds(lambda: update(view, belief, touch, T, settings=belief_settings))
+            seconds, belief = seconds_of(lambda: update(view, belief, touch, T, settings=belief_settings))
             times["update"].append(seconds)
-        seconds, (poses, _) = _seconds(lambda: propose_grasps(jax.random.key(e), view, grid, belief, args.candidates,
+        seconds, (poses, _) = seconds_of(lambda: propose_grasps(jax.random.key(e), view, grid, belief, args.candidates,
                                                               settings))
         times["propose"].append(seconds)
-        seconds, _ = _seconds(lambda: next_grasp(view, grid, belief, poses, settings))
+        seconds, _ = seconds_of(lambda: next_grasp(view, grid, belief, poses, settings))
         times["rank"].append(seconds)
     rows, result = [], {"machine": machine_info(), "map": args.map, "candidates": args.candidates,
                         "hypotheses": args.hypotheses, "marching_grid_s": grid_s}

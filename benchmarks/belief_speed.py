@@ -23,26 +23,19 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import jax
 import numpy as np
 
 try:
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import format_table, machine_info, seconds_of, write_json
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, write_json
+    from _common import format_table, machine_info, seconds_of, write_json
 
 from tactojax.features import encode_images
 from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, resolve_shape_model, tactile_map_metadata
 from tactojax.localize import (BeliefSettings, LocalizationMap, Touch, calibration_from_json, empty_belief,
                                load_test_episodes, localize_baseline, update_belief)
-
-
-def _seconds(call) -> tuple[float, object]:
-    start = time.perf_counter()
-    out = jax.block_until_ready(call())
-    return time.perf_counter() - start, out
 
 
 def main() -> None:
@@ -62,8 +55,8 @@ def main() -> None:
     stored = tactile_map_metadata(args.map).get("metadata", {}).get("belief_calibration")
     calibration = None if stored is None else calibration_from_json(stored)
     # The view holds the surface grid, the object's symmetries (catalog) and the calibration.
-    surface_first_s, view = _seconds(lambda: LocalizationMap.from_tactile_map(tactile_map, calibration=calibration))
-    surface_s, _ = _seconds(lambda: LocalizationMap.from_tactile_map(tactile_map, calibration=calibration))
+    surface_first_s, view = seconds_of(lambda: LocalizationMap.from_tactile_map(tactile_map, calibration=calibration))
+    surface_s, _ = seconds_of(lambda: LocalizationMap.from_tactile_map(tactile_map, calibration=calibration))
     symmetries = view.symmetries
     episodes, fingers = load_test_episodes(args.test, tactile_map.object_id, model, encoder, progress=False)
     if args.fingers > fingers:
@@ -84,25 +77,25 @@ def main() -> None:
 
     query, T_first = touch(0, 0, 0)
     empty = empty_belief(view, settings)
-    compile_belief_s, _ = _seconds(lambda: update(view, empty, query, T_first, settings))
-    compile_cti_s, _ = _seconds(lambda: cti_icp(query))
+    compile_belief_s, _ = seconds_of(lambda: update(view, empty, query, T_first, settings))
+    compile_cti_s, _ = seconds_of(lambda: cti_icp(query))
     first, further, reference = [], [], []
     count = min(args.episodes, episodes.openings.shape[0])
     # The first further touch compiles once more if the empty belief's types differ from an
     # updated one's (a weak type): it is timed apart, as the first calls are.
     second, T_second = touch(0, 0, 1) if args.fingers > 1 else touch(0, 1, 0)
-    compile_further_s, _ = _seconds(lambda: update(view, update(view, empty, query, T_first, settings), second,
+    compile_further_s, _ = seconds_of(lambda: update(view, update(view, empty, query, T_first, settings), second,
                                                    T_second, settings))
     for e in range(count):
         belief = empty
         for g in range(episodes.openings.shape[1]):
             for f in range(args.fingers):
                 one, T_object_sensor = touch(e, g, f)
-                seconds, belief = _seconds(lambda: update(view, belief, one, T_object_sensor, settings))
+                seconds, belief = seconds_of(lambda: update(view, belief, one, T_object_sensor, settings))
                 (first if g == f == 0 else further).append(seconds)
                 if not bool(one.mask.any()):
                     continue  # CTI-ICP refuses a touch without contact
-                reference.append(_seconds(lambda: cti_icp(one))[0])
+                reference.append(seconds_of(lambda: cti_icp(one))[0])
 
     def ms(values, q=50):
         return 1e3 * float(np.percentile(values, q))
