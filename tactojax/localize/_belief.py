@@ -211,14 +211,20 @@ class PoseBelief:
         return -jnp.log(jnp.maximum(mass, 1e-6)), jnp.any(near & self.credible_set(0.9))
 
 
+def reference_cloud(belief: PoseBelief) -> tuple[Float[Array, "N 3"], Bool[Array, "N"]]:
+    """(T * P, 3) the remembered touches' contact points in the reference sensor frame (mm),
+    and (T * P,) which are valid (a point of a remembered touch)."""
+    points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact)
+    valid = belief.evidence.contact_valid & belief.touch_valid[:, None]
+    return points.reshape(-1, 3), valid.reshape(-1)
+
+
 def hypothesis_distances(belief: PoseBelief, T_object_reference: jaxlie.SE3, *,
                          symmetric: bool = False) -> Float[Array, "M"]:
     """(M,) RMSE (mm) between the remembered touches' contact points placed by every hypothesis
     and by ``T_object_reference`` (the paper's metric over the fused touches); with
     ``symmetric``, by its closest symmetric copy."""
-    points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact)  # reference frame
-    valid = belief.evidence.contact_valid & belief.touch_valid[:, None]
-    mean, covariance = cloud_moments(points.reshape(-1, 3), valid.reshape(-1))
+    mean, covariance = cloud_moments(*reference_cloud(belief))
     if not symmetric:
         return moment_rmse(mean, covariance, belief.T_object_reference, T_object_reference)
     copies = jax.vmap(lambda S: S @ T_object_reference)(belief.symmetries)  # (S,)
@@ -426,8 +432,7 @@ def neighbourhood_probes(view: LocalizationMap, belief: PoseBelief, T_object_ref
     in the face, which the contact cannot see; on a cylinder, the slide along and the turn
     about its axis. A turn larger than ``max_turn_rad`` is shortened to it (a pinpoint contact).
     """
-    points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact).reshape(-1, 3)
-    valid = (belief.evidence.contact_valid & belief.touch_valid[:, None]).reshape(-1)
+    points, valid = reference_cloud(belief)
     count = jnp.maximum(jnp.sum(valid), 1).astype(jnp.float32)
     zero = jnp.zeros(6)
 
