@@ -6,9 +6,10 @@ the steps around them in NumPy, SciPy and OpenCV; registration with Open3D's poi
 1. heightmap: the shape model's slope network (ONNX Runtime), Poisson integration with SciPy's
    DCT, the background quantile and the contact threshold in NumPy;
 2. features: OpenCV resize to the encoder's input, normalisation in NumPy, the encoder (ONNX
-   Runtime). EfficientNet's depthwise convolutions are exported as grouped convolutions, the
-   graph a PyTorch export gives (tactojax computes them as fused shifted products instead, which
-   XLA runs faster but ONNX Runtime 3-4x slower);
+   Runtime). EfficientNet's depthwise convolutions are exported as grouped convolutions
+   (``EfficientNetLite(grouped_depthwise=True)``), the graph a PyTorch export gives (tactojax
+   computes them as fused shifted products instead, which XLA runs faster but ONNX Runtime 3-4x
+   slower);
 3. identification and CTI retrieval: cosine similarities and the opening filter in NumPy;
 4. registration: Open3D ICP of the touch's contact points against the N retrieved imprints'
    clouds, started at the most similar one (as ``benchmarks/localization.py``).
@@ -20,30 +21,18 @@ import time
 from dataclasses import dataclass
 
 import cv2
-import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.fft
 
-from tactojax.features import _efficientnet
-from tactojax.features._encoder import normalize_features
-from tactojax.shape import _predict
-from tactojax.shape._models import SlopePoissonNet, build_network, pixel_patches
+from tactojax.features import EfficientNetLite
+from tactojax.shape import build_network, network_input, pixel_patches
 
 
-class GroupedDepthwiseConv(nn.Module):
-    """``_efficientnet.DepthwiseConv``'s parameters as one grouped convolution (the standard graph)."""
-
-    kernel_size: int
-    strides: int = 1
-
-    @nn.compact
-    def __call__(self, x):
-        k, stride = self.kernel_size, self.strides
-        kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, x.shape[-1]), x.dtype)
-        return jax.lax.conv_general_dilated(x, kernel, (stride, stride), "SAME", feature_group_count=x.shape[-1],
-                                            dimension_numbers=("NHWC", "HWIO", "NHWC"))
+def unit_rows(features):
+    """Rows scaled to unit L2 norm, as the encoder's features are (an all-zero row stays zero)."""
+    return features / jnp.maximum(jnp.linalg.norm(features, axis=-1, keepdims=True), 1e-12)
 
 
 def onnx_session(function, example: np.ndarray, threads: int):
@@ -109,24 +98,21 @@ class PeerPipeline:
 
         self.o3d = open3d
         network = build_network(model.preset, model.mm_per_px)
-        if not isinstance(network, SlopePoissonNet):
+        if not hasattr(network, "slope"):
             raise ValueError(f"the peer pipeline runs slope-network shape models, not {model.preset!r}")
         self.model, self.encoder = model, encoder
         height, width = model.image_shape
         self.background = np.asarray(model.background, np.float32)
-        example = np.asarray(_predict.network_input(jnp.zeros((height, width, 3)), model.background, model.preset,
-                                                    model.color_gain))
+        example = np.asarray(network_input(jnp.zeros((height, width, 3)), model.background, model.preset,
+                                           model.color_gain))
         self.coordinates = example[..., 3:]
         self.slope = onnx_session(lambda x: network.apply({"params": model.params}, pixel_patches(x),
                                                           method=network.slope), example, threads)
-        original = _efficientnet.DepthwiseConv
-        _efficientnet.DepthwiseConv = GroupedDepthwiseConv
-        try:
-            size = encoder.input_size
-            self.features = onnx_session(lambda x: normalize_features(encoder.module.apply(encoder.variables, x)),
-                                         np.zeros((1, *size, 3), np.float32), threads)
-        finally:
-            _efficientnet.DepthwiseConv = original
+        module = encoder.module
+        if isinstance(module, EfficientNetLite):
+            module = module.clone(grouped_depthwise=True)
+        self.features = onnx_session(lambda x: unit_rows(module.apply(encoder.variables, x)),
+                                     np.zeros((1, *encoder.input_size, 3), np.float32), threads)
         self.mean, self.std = np.asarray(encoder.mean, np.float32), np.asarray(encoder.std, np.float32)
         self.encoder_background = None if encoder.background is None else np.asarray(encoder.background, np.float32)
         self.map_features = np.asarray(tactile_map.features, np.float32)

@@ -7,6 +7,7 @@ call with the reference in the same process: one belief update (the touch the ra
 :func:`tactojax.localize.update_belief`), so that the ratio means something on a busy machine.
 
     python benchmarks/active_ranking.py gum_box.npz --test data/fresh-gum_box --json active_ranking.json
+    python benchmarks/active_ranking.py --quick   # smoke run: 2 beliefs, scissors on a 20 mm map, simulated grasps
 """
 
 from __future__ import annotations
@@ -19,32 +20,34 @@ import jax
 import numpy as np
 
 try:
-    from benchmarks._common import format_table, machine_info, seconds_of, write_json
+    from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                                    map_paths, new_grasps_set, seconds_of, write_json)
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, seconds_of, write_json
+    from _common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, map_paths,
+                         new_grasps_set, seconds_of, write_json)
 
-from tactojax.io import DEFAULT_ENCODER, load_localization_map, resolve_encoder, resolve_shape_model
-from tactojax.localize import (ActiveSettings, BeliefSettings, Touch, empty_belief, load_test_episodes,
-                               map_marching_grid, next_grasp, propose_grasps, update_belief)
+from tactojax.io import resolve_encoder, resolve_shape_model
+from tactojax.localize import (ActiveSettings, BeliefSettings, LocalizationMap, Touch, empty_belief,
+                               load_test_episodes, map_marching_grid, next_grasp, propose_grasps, update_belief)
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("map", help="the object's tactile map (.npz)")
-    parser.add_argument("--test", required=True, metavar="DIR", help="new-grasps test set (two fingers)")
+    add_map_arguments(parser)
+    parser.add_argument("--test", metavar="DIR", help="new-grasps test set (two fingers; default: simulate one)")
     parser.add_argument("--episodes", type=int, default=8, help="episodes (beliefs) timed (default 8)")
     parser.add_argument("--candidates", type=int, default=64)
     parser.add_argument("--hypotheses", type=int, default=8)
-    parser.add_argument("--model", default="bundled:fast-gelslim-0.5", help="shape model")
-    parser.add_argument("--json", help="write the results here")
+    add_common_arguments(parser, quick="2 beliefs, a 20 mm map", seed_help="candidate grasps (and a simulated test set)")
     args = parser.parse_args()
+    if args.quick:
+        args.episodes = min(args.episodes, 2)
+    return args
 
-    view = load_localization_map(args.map)
-    start = time.perf_counter()
-    grid = map_marching_grid(view)
-    grid_s = time.perf_counter() - start
-    episodes, _ = load_test_episodes(args.test, view_object(args.map), resolve_shape_model(args.model),
-                                     resolve_encoder(DEFAULT_ENCODER), progress=False)
+
+def time_ranking(args, view, grid, episodes) -> dict[str, list[float]]:
+    """Seconds of every call: the two belief updates of each episode's first grasp (the
+    reference), proposing candidates and ranking them."""
     settings, belief_settings = ActiveSettings(hypotheses=args.hypotheses), BeliefSettings()
     update = jax.jit(update_belief, static_argnames=("settings",))
     times = {"propose": [], "rank": [], "update": []}
@@ -56,13 +59,28 @@ def main() -> None:
             T = jax.tree.map(lambda x: x[e, 0, finger], episodes.T_object_sensor)
             seconds, belief = seconds_of(lambda: update(view, belief, touch, T, settings=belief_settings))
             times["update"].append(seconds)
-        seconds, (poses, _) = seconds_of(lambda: propose_grasps(jax.random.key(e), view, grid, belief, args.candidates,
-                                                              settings))
+        seconds, (poses, _) = seconds_of(lambda: propose_grasps(jax.random.key(args.seed + e), view, grid, belief,
+                                                              args.candidates, settings))
         times["propose"].append(seconds)
         seconds, _ = seconds_of(lambda: next_grasp(view, grid, belief, poses, settings))
         times["rank"].append(seconds)
-    rows, result = [], {"machine": machine_info(), "map": args.map, "candidates": args.candidates,
-                        "hypotheses": args.hypotheses, "marching_grid_s": grid_s}
+    return times
+
+
+def main() -> None:
+    args = parse_args()
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    ((tactile_map, calibration),) = load_maps(args, model, encoder)
+    view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
+    start = time.perf_counter()
+    grid = map_marching_grid(view)
+    grid_s = time.perf_counter() - start
+    test = new_grasps_set(args, tactile_map.object_id, episodes=args.episodes, grasps=1, fingers=2)
+    episodes, _ = load_test_episodes(test, tactile_map.object_id, model, encoder, progress=False)
+    times = time_ranking(args, view, grid, episodes)
+    rows, result = [], {"machine": machine_info(), "map": (map_paths(args) or [tactile_map.object_id])[0],
+                        "candidates": args.candidates, "hypotheses": args.hypotheses, "marching_grid_s": grid_s,
+                        "seed": args.seed}
     for name, values in times.items():
         first, steady = values[0], values[1:] if name != "update" else values[2:]
         result[name] = {"first_s": first, "median_s": statistics.median(steady), "calls": len(steady),
@@ -74,13 +92,7 @@ def main() -> None:
           f"{result['rank']['median_s'] / result['update']['median_s']:.2f}")
     if args.json:
         write_json(args.json, result)
-
-
-def view_object(path: str) -> str:
-    """The object id a map file stores."""
-    from tactojax.io import tactile_map_metadata
-
-    return tactile_map_metadata(path)["object_id"]
+        print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ the dataset). Run from the repository root:
 
     python benchmarks/bag_import.py --json bag_import.json             # 60 s, 640 x 480
     python benchmarks/bag_import.py --seconds 10 --json quick.json
+    python benchmarks/bag_import.py --quick              # smoke run: 4 s at 240 x 320
 """
 
 from __future__ import annotations
@@ -23,13 +24,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import format_table, machine_info, write_json  # noqa: E402
+from _common import add_common_arguments, format_table, machine_info, write_json  # noqa: E402
 
 from tactojax.hardware import import_bag  # noqa: E402
 from tactojax.sensor import gelslim  # noqa: E402
 
 
-def write_session(path: Path, kind: str, seconds: float, height: int, width: int) -> int:
+def write_session(path: Path, kind: str, seconds: float, height: int, width: int, seed: int = 0) -> int:
     """Write the synthetic session; returns its size in bytes."""
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
@@ -40,7 +41,7 @@ def write_session(path: Path, kind: str, seconds: float, height: int, width: int
     serialize, types = (store.serialize_ros1 if ros1 else store.serialize_cdr), store.types
     writer = Writer1(path) if ros1 else Writer2(path, version=9, storage_plugin=(
         StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3))
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     frames = [rng.integers(0, 255, (height, width, 3), np.uint8) for _ in range(4)]
 
     def header(t):
@@ -84,40 +85,50 @@ def read_everything(path: Path) -> int:
     return count
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--width", type=int, default=640)
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="4 s of a 240 x 320 camera", seed_help="the synthetic camera frames")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds, args.height, args.width = min(args.seconds, 4.0), min(args.height, 240), min(args.width, 320)
+    return args
+
+
+def one_storage(args, scratch: Path, kind: str) -> dict:
+    """Write the session in one storage, read it with rosbags, import it: sizes and seconds."""
     spec = gelslim(scale=0.5)
     aspect = spec.width_px / spec.height_px
     corners = [[0, 0], [args.height * aspect, 0], [args.height * aspect, args.height], [0, args.height]]
-    rows, results = [], {}
+    bag = scratch / ("session.bag" if kind == "ros1" else f"session-{kind}")
+    size = write_session(bag, kind, args.seconds, args.height, args.width, args.seed)
+    start = time.perf_counter()
+    messages = read_everything(bag)
+    reference_s = time.perf_counter() - start
+    start = time.perf_counter()
+    summary = import_bag(bag, scratch / f"out-{kind}", spec, image_topic="/image", pose_topic="/pose",
+                         gripper_topic="/joint_states", corners=corners, progress=False)
+    import_s = time.perf_counter() - start
+    frames = summary.image_messages
+    return {"bag_mb": size / 1e6, "messages": messages, "image_messages": frames, "touches": summary.recorded,
+            "reference_s": reference_s, "import_s": import_s, "import_frames_per_s": frames / import_s,
+            "import_mb_per_s": size / 1e6 / import_s}
+
+
+def main() -> None:
+    args = parse_args()
     with tempfile.TemporaryDirectory() as scratch:
-        for kind in ("sqlite3", "mcap", "ros1"):
-            bag = Path(scratch) / ("session.bag" if kind == "ros1" else f"session-{kind}")
-            size = write_session(bag, kind, args.seconds, args.height, args.width)
-            start = time.perf_counter()
-            messages = read_everything(bag)
-            reference_s = time.perf_counter() - start
-            start = time.perf_counter()
-            summary = import_bag(bag, Path(scratch) / f"out-{kind}", spec, image_topic="/image",
-                                 pose_topic="/pose", gripper_topic="/joint_states", corners=corners,
-                                 progress=False)
-            import_s = time.perf_counter() - start
-            frames = summary.image_messages
-            results[kind] = {"bag_mb": size / 1e6, "messages": messages, "image_messages": frames,
-                             "touches": summary.recorded, "reference_s": reference_s, "import_s": import_s,
-                             "import_frames_per_s": frames / import_s, "import_mb_per_s": size / 1e6 / import_s}
-            rows.append([kind, f"{size / 1e6:.0f}", frames, summary.recorded, reference_s, import_s,
-                         frames / import_s, import_s / reference_s])
+        results = {kind: one_storage(args, Path(scratch), kind) for kind in ("sqlite3", "mcap", "ros1")}
+    rows = [[kind, f"{r['bag_mb']:.0f}", r["image_messages"], r["touches"], r["reference_s"], r["import_s"],
+             r["import_frames_per_s"], r["import_s"] / r["reference_s"]] for kind, r in results.items()]
     print(format_table(["storage", "MB", "frames", "touches", "rosbags read (s)", "import (s)", "import frames/s",
                         "import / read"], rows))
     if args.json:
         write_json(args.json, {"machine": machine_info(), "seconds": args.seconds, "height": args.height,
-                               "width": args.width, "results": results})
+                               "width": args.width, "seed": args.seed, "results": results})
+        print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

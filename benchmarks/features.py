@@ -3,9 +3,9 @@
 For each encoder (the first is the reference, by default ImageNet EfficientNet-Lite0):
 
 - **speed**: one 120 x 160 image (a map's first imprint) through the encoder's whole input
-  pipeline and network, jitted; compile time apart, the steady-state median over interleaved
-  rounds (every encoder timed in each round, so a busy machine slows them alike), and the
-  kernels one call launches (``tactojax._compilation.kernel_count``);
+  pipeline and network, jitted; compile time apart, the steady-state median of ``--repeats``
+  calls in interleaved rounds of 10 (every encoder timed in each round, so a busy machine slows
+  them alike), and the kernels one call launches (``tactojax.kernel_count``);
 - **recall@N** per map (``localization_ceiling.retrieval_recall``): how often the N most similar
   imprints of a leave-one-out query hold a true neighbour;
 - **leave-one-out CTI-ICP-5**: median RMSE (mm) over the same queries (symmetry-aware in
@@ -15,6 +15,7 @@ For each encoder (the first is the reference, by default ImageNet EfficientNet-L
 
     python benchmarks/features.py scissors.npz screwdriver.npz large_marker.npz \\
         --test data/test --json features.json     # ImageNet against bundled:features-tactile
+    python benchmarks/features.py --quick       # smoke run: 20 calls, 10 queries, scissors on a 20 mm map
 """
 
 from __future__ import annotations
@@ -29,21 +30,24 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from tactojax._compilation import kernel_count
+from tactojax import kernel_count
 from tactojax.cli import main as cli_main
 from tactojax.features import apply_encoder, encode_images
-from tactojax.io import load_tactile_map, open_dataset, resolve_encoder
+from tactojax.io import load_tactile_map, open_dataset, resolve_encoder, resolve_shape_model
 from tactojax.localize import evaluate_localization
 from tactojax.objects import CATALOG, get_object
 
 try:  # run as ``python benchmarks/features.py`` or as a module
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                                    map_paths, write_json)
     from benchmarks.localization_ceiling import retrieval_recall
 except ImportError:
-    from _common import format_table, machine_info, write_json
+    from _common import add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, map_paths, write_json
     from localization_ceiling import retrieval_recall
 
 RECALL_AT = (1, 5, 15, 50)
+CALLS_PER_ROUND = 10
+"""Timed calls of one encoder before the next encoder's (``--repeats`` of each, in rounds)."""
 
 
 def encoder_speed(encoders: dict, image: np.ndarray, *, rounds: int, calls: int) -> dict:
@@ -104,32 +108,27 @@ def _mm(entry: dict | None) -> str:
     return text if entry.get("symmetric_median_mm") is None else f"{text} ({entry['symmetric_median_mm']:.1f})"
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) of `tactojax map`")
+    add_map_arguments(parser, several=True)
     parser.add_argument("--encoders", nargs="+", default=["imagenet:efficientnet-lite0", "bundled:features-tactile"],
                         help="encoders to compare; the first is the reference")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries per map (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="query choice, as eval-localization's --seed")
     parser.add_argument("--test", metavar="DIR", help="new-grasps test set of the maps' objects")
     parser.add_argument("--fingers", type=int, default=2, help="fingers of the test set (default 2)")
-    parser.add_argument("--rounds", type=int, default=20, help="timing rounds (default 20)")
-    parser.add_argument("--calls", type=int, default=10, help="timed calls per encoder and round (default 10)")
     parser.add_argument("--no-localization", action="store_true", help="only speed and recall")
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="20 timed calls, 10 queries, a 20 mm map",
+                         seed_help="query choice, as eval-localization's --seed", repeats=200,
+                         repeats_help=f"timed calls per encoder, in rounds of {CALLS_PER_ROUND}")
     args = parser.parse_args()
+    if args.quick:
+        args.repeats, args.queries = min(args.repeats, 20), min(args.queries, 10)
+    return args
 
-    maps = [load_tactile_map(path) for path in args.maps]
-    encoders = {name: resolve_encoder(name) for name in args.encoders}
-    image = np.asarray(maps[0].images[0])
-    speed = encoder_speed(encoders, image, rounds=args.rounds, calls=args.calls)
-    reference = args.encoders[0]
-    print(f"one {image.shape[0]} x {image.shape[1]} image, {args.rounds} x {args.calls} calls per encoder")
-    print(format_table(["encoder", "median ms", "p90 ms", "x reference", "kernels", "compile s"],
-                       [[name, f"{s['median_ms']:.2f}", f"{s['p90_ms']:.2f}",
-                         f"{s['median_ms'] / speed[reference]['median_ms']:.3f}", s["kernels"], f"{s['compile_s']:.1f}"]
-                        for name, s in speed.items()]))
 
+def per_object(args, maps: list, encoders: dict) -> dict:
+    """Per map and encoder: recall@N and (unless ``--no-localization``) leave-one-out CTI-ICP-5
+    on the same queries, and new grasps of ``--test``."""
     objects: dict[str, dict] = {}
     for tactile_map in maps:
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
@@ -147,11 +146,20 @@ def main() -> None:
                                           "encoders": per_encoder}
     if args.test and not args.no_localization:
         tested = set(open_dataset(args.test).read(["object_id"])["object_id"].astype(str).tolist())
-        paths = [path for path, m in zip(args.maps, maps) if m.object_id in tested]
+        paths = [path for path, m in zip(map_paths(args), maps) if m.object_id in tested]
         for name in args.encoders:
             for object_id, result in new_grasps(paths, name, args.test, args.fingers).items():
                 objects[object_id]["encoders"][name]["new_grasps"] = result
+    return objects
 
+
+def print_results(args, speed: dict, objects: dict, image_shape) -> None:
+    reference = args.encoders[0]
+    print(f"one {image_shape[0]} x {image_shape[1]} image, {args.repeats} calls per encoder")
+    print(format_table(["encoder", "median ms", "p90 ms", "x reference", "kernels", "compile s"],
+                       [[name, f"{s['median_ms']:.2f}", f"{s['p90_ms']:.2f}",
+                         f"{s['median_ms'] / speed[reference]['median_ms']:.3f}", s["kernels"], f"{s['compile_s']:.1f}"]
+                        for name, s in speed.items()]))
     rows = []
     for object_id, entry in objects.items():
         for name, result in entry["encoders"].items():
@@ -161,9 +169,24 @@ def main() -> None:
     print(format_table(["object", "encoder", "ms", "kernels", "recall@" + "/".join(map(str, RECALL_AT)) + " %",
                         f"leave-one-out CTI-ICP-5 median mm ({args.queries} queries)",
                         "new grasps CTI-ICP-5 median mm (1 touch)"], rows))
+
+
+def main() -> None:
+    args = parse_args()
+    if map_paths(args):
+        maps = [load_tactile_map(path) for path in map_paths(args)]
+    else:  # --object, simulated and mapped (its features are replaced by each encoder's below)
+        maps = [m for m, _ in load_maps(args, resolve_shape_model(args.model), resolve_encoder(args.encoder))]
+    encoders = {name: resolve_encoder(name) for name in args.encoders}
+    image = np.asarray(maps[0].images[0])
+    rounds = max(1, args.repeats // CALLS_PER_ROUND)
+    speed = encoder_speed(encoders, image, rounds=rounds, calls=min(args.repeats, CALLS_PER_ROUND))
+    objects = per_object(args, maps, encoders)
+    print_results(args, speed, objects, image.shape)
     if args.json:
-        write_json(args.json, {"speed": speed, "objects": objects, "reference": reference, "queries": args.queries,
-                               "test": args.test, "fingers": args.fingers, "machine": machine_info()})
+        write_json(args.json, {"speed": speed, "objects": objects, "reference": args.encoders[0],
+                               "queries": args.queries, "test": args.test, "fingers": args.fingers,
+                               "repeats": args.repeats, "seed": args.seed, "machine": machine_info()})
         print(f"wrote {args.json}")
 
 

@@ -26,7 +26,7 @@ Each stage is jitted on its own (its input is the previous stage's output); "pre
 whole pipeline in one program, which is what a user calls. Reported per stage: compile time
 (``lower().compile()``), steady-state median and 10th percentile of ``--repeats`` calls (after
 one warm call, each ending in ``block_until_ready``), and the number of kernels the compiled
-program launches (``tactojax._compilation.kernel_count``). Also the largest difference of the
+program launches (``tactojax.kernel_count``). Also the largest difference of the
 heightmaps and the mask agreement between the two formulations.
 
 Sizes: 120 x 160 px at 0.2 mm/px (``gelslim(scale=0.5)``, the bundled checkpoint
@@ -55,18 +55,17 @@ import numpy as np
 from jax.scipy.fft import dctn, idctn
 
 try:
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import DEFAULT_MODEL, add_common_arguments, format_table, machine_info, write_json
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, write_json
+    from _common import DEFAULT_MODEL, add_common_arguments, format_table, machine_info, write_json
 
-from tactojax._compilation import kernel_count
+from tactojax import kernel_count
 from tactojax.io import resolve_shape_model
 from tactojax.sensor import add_sensor_noise, gelslim, render_image
-from tactojax.shape import build_network, coordinate_bias, integrate_gradient, predict, zero_background
-from tactojax.shape._models import MASK_SHARPNESS_MM, patch_planes
-from tactojax.shape._predict import network_input
+from tactojax.shape import (MASK_SHARPNESS_MM, build_network, coordinate_bias, integrate_gradient, network_input,
+                            patch_planes, predict, zero_background)
 
-BUNDLED = "bundled:fast-gelslim-0.5"
+BUNDLED = DEFAULT_MODEL
 FORMULATIONS = ("before", "now", "now + bias")
 """The replaced formulation (reference), ``predict``, and ``predict`` with the model's
 ``coordinate_bias`` computed once (the live ``Localizer``'s path)."""
@@ -207,7 +206,7 @@ def time_interleaved(programs: dict[str, dict[str, Any]], repeats: int) -> dict[
 
 # --- inputs -------------------------------------------------------------------------------------
 
-def model_and_image(scale: float):
+def model_and_image(scale: float, seed: int = 0):
     """The bundled ``fast`` model at ``gelslim(scale)``'s size and pitch, a sphere press, and
     whether the weights were trained at that size."""
     model = resolve_shape_model(BUNDLED)
@@ -219,13 +218,13 @@ def model_and_image(scale: float):
     rows, cols = np.mgrid[:spec.height_px, :spec.width_px] * spec.mm_per_px
     centre, radius = np.array([rows.max(), cols.max()]) * 0.5, 4.0
     depth = np.maximum(1.0 - ((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2) / radius**2, 0.0)
-    image = add_sensor_noise(jax.random.key(0), spec, render_image(spec, jnp.asarray(depth, jnp.float32)))
+    image = add_sensor_noise(jax.random.key(seed), spec, render_image(spec, jnp.asarray(depth, jnp.float32)))
     return model, image, trained
 
 
-def bench_size(scale: float, repeats: int) -> dict[str, Any]:
+def bench_size(scale: float, repeats: int, seed: int = 0) -> dict[str, Any]:
     """The formulations at one sensor size: per-stage timings, kernels, compile, agreement."""
-    model, image, trained = model_and_image(scale)
+    model, image, trained = model_and_image(scale, seed)
     stages = {f: compile_stages(model, image, f) for f in FORMULATIONS}
     programs = {(f, name): stage for f, by_name in stages.items() for name, stage in by_name.items()}
     timings = time_interleaved(programs, repeats)
@@ -266,17 +265,16 @@ def print_size(result: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=300, help="steady-state calls per program")
     parser.add_argument("--scales", type=float, nargs="+", default=[0.5, 1.0],
                         help="gelslim resolution factors (0.5: 120 x 160, 1.0: 240 x 320)")
-    parser.add_argument("--quick", action="store_true", help="smoke run: 20 repeats")
-    parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
+    add_common_arguments(parser, quick="20 repeats", seed_help="the sensor noise of the input image", repeats=300,
+                         repeats_help="steady-state calls per program")
     args = parser.parse_args(argv)
     repeats = 20 if args.quick else args.repeats
     results: dict[str, Any] = {"machine": machine_info(), "settings": {**vars(args), "repeats": repeats},
                                "load_average_before": os.getloadavg(), "sizes": []}
     for scale in args.scales:
-        results["sizes"].append(bench_size(scale, repeats))
+        results["sizes"].append(bench_size(scale, repeats, args.seed))
         print_size(results["sizes"][-1])
     results["load_average_after"] = os.getloadavg()
     print(f"\nload average (1, 5, 15 min) before {results['load_average_before']}, "

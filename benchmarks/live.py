@@ -19,8 +19,9 @@ the same run: the same grasps through the stage-by-stage API (``predict``, ``enc
 belief: the same numbers up to floating point).
 
     python benchmarks/live.py --json live.json
-    python benchmarks/live.py --map scissors-cal.npz --test data/fresh-scissors --episodes 8
-    python benchmarks/live.py --map scissors-cal.npz --test data/fresh-scissors --episodes 32 --fingers 2
+    python benchmarks/live.py scissors-cal.npz --test data/fresh-scissors --episodes 8
+    python benchmarks/live.py scissors-cal.npz --test data/fresh-scissors --episodes 32 --fingers 2
+    python benchmarks/live.py --quick         # smoke run: 2 episodes of 2 grasps on a 20 mm map
 
 With ``--fingers 2`` the opposite finger's frames are a second video read in step
 (``live_estimates(..., second_camera=...)``, ``tactojax localize-live --second-camera``), and
@@ -32,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import time
-import zlib
 from pathlib import Path
 
 import jax
@@ -41,51 +41,26 @@ import jaxlie
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tactojax._compilation import CompilationCounter
-from tactojax.features import encode_image, encode_images
+from tactojax import CompilationCounter
+from tactojax.features import encode_image
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
-from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, read_grasps, read_test_grasps, resolve_encoder,
-                         resolve_shape_model, tactile_map_metadata)
-from tactojax.localize import (BeliefSettings, LocalizationMap, Localizer, Touch, calibration_from_json,
-                               localize)
-from tactojax.mapping import build_tactile_map, observed_contact
+from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
+from tactojax.localize import BeliefSettings, LocalizationMap, Localizer, Touch, localize
+from tactojax.mapping import observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
-from tactojax.simulate import GraspsProtocol, MappingProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/live.py`` or as a module
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                                    new_grasps_set, write_json)
 except ImportError:
-    from _common import format_table, machine_info, write_json
+    from _common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                         new_grasps_set, write_json)
 
 RELEASED_MM = 10.0
 """How much wider the gripper stands on the frames between grasps, mm."""
-
-
-def simulated(work: Path, name: str, protocol, tag: str) -> Path:
-    """A simulated dataset of ``name`` (written once under ``work``, then read from there)."""
-    path = work / f"{name}-{tag}"
-    if not (path / "manifest.json").exists():
-        simulate_to_dataset(path, jax.random.key(zlib.crc32(tag.encode())), gelslim(scale=0.5), get_object(name),
-                            protocol)
-    return path
-
-
-def load_map(args, work: Path, model, encoder):
-    """The object's map with features, and its stored belief calibration (None: uncalibrated)."""
-    if args.map is None:
-        grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
-        tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
-                                        args.object, T_world_object=grasps["T_world_object"])
-        return tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True)), None
-    tactile_map = load_tactile_map(args.map)
-    if tactile_map.features.shape[1] == 0:
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
-    stored = tactile_map_metadata(args.map).get("metadata", {}).get("belief_calibration")
-    usable = stored is not None and stored.get("encoder", args.encoder) == args.encoder
-    return tactile_map, (calibration_from_json(stored) if usable else None)
 
 
 def true_clouds(heightmaps: np.ndarray, masks: np.ndarray, mm_per_px: float) -> tuple[np.ndarray, np.ndarray]:
@@ -134,15 +109,10 @@ def per_grasp(errors: np.ndarray, probabilities: np.ndarray) -> list[dict]:
     return rows
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--object", default="scissors")
-    parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache")
-    parser.add_argument("--map", help="a saved map (.npz; its stored belief calibration is used if it was fit "
-                                      "with --encoder); default: simulate and map --object")
+    add_map_arguments(parser)
     parser.add_argument("--test", metavar="DIR", help="a new-grasps test set of the object (default: simulate one)")
-    parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
     parser.add_argument("--episodes", type=int, default=8, help="episodes played (default 8)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=1,
                         help="fingers with a sensor (2: the opposite finger's frames come from a second camera, "
@@ -152,17 +122,16 @@ def main() -> None:
     parser.add_argument("--gap", type=int, default=2, help="frames without contact between grasps (default 2)")
     parser.add_argument("--fps", type=float, default=30.0, help="the video's nominal frame rate")
     parser.add_argument("--no-reference", action="store_true", help="leave out the stage-by-stage reference")
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="2 episodes of 2 grasps, a 20 mm map", seed_help="simulated test set")
     args = parser.parse_args()
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
-    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
-    tactile_map, calibration = load_map(args, work, model, encoder)
-    name = tactile_map.object_id
+    if args.quick:
+        args.episodes, args.grasps = min(args.episodes, 2), min(args.grasps, 2)
+    return args
 
-    test = Path(args.test) if args.test else simulated(
-        work, name, GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps, fingers=args.fingers),
-        f"grasps-e{args.episodes}-g{args.grasps}-f{args.fingers}")
+
+def read_episodes(args, test: Path, name: str) -> tuple[dict, dict, int, int]:
+    """The test set's grasps of finger 0 and of the opposite finger, whole episodes only:
+    (records, opposite records, episodes, grasps per episode)."""
     fields = ["image", "heightmap", "mask", "opening_mm", "T_world_gripper", "T_world_sensor", "T_world_object"]
     records = read_test_grasps(test, fields, object_id=name)
     grasps = int(np.sum((records["episode"] == records["episode"][0]) & (records["finger"] == 0)))
@@ -174,19 +143,24 @@ def main() -> None:
     episodes = min(args.episodes, len(records["image"]) // grasps)
     records = {key: value[:episodes * grasps] for key, value in records.items()}
     opposite = {key: value[:episodes * grasps] for key, value in opposite.items()}
+    return records, opposite, episodes, grasps
+
+
+def ground_truth(records: dict, name: str, mm_per_px: float):
+    """The touches' true sensor poses in the object frame (wxyz_xyz), their true clouds' means
+    and covariances, and the object's symmetries (rotations, translations), for :func:`cloud_error`."""
     T_world_object = jaxlie.SE3(jnp.asarray(records["T_world_object"]))
     truth = np.asarray((T_world_object.inverse() @ jaxlie.SE3(jnp.asarray(records["T_world_sensor"]))).wxyz_xyz)
-    means, covariances = true_clouds(records["heightmap"], records["mask"], tactile_map.mm_per_px)
+    means, covariances = true_clouds(records["heightmap"], records["mask"], mm_per_px)
     group = get_object(name).symmetry.transforms()
     symmetries = (np.asarray(group.rotation().as_matrix(), np.float64), np.asarray(group.translation(), np.float64))
+    return truth, means, covariances, symmetries
 
-    print(f"compiling the live programs ({name}: {len(tactile_map)} imprints) ...", flush=True)
-    settings = BeliefSettings()
-    localizer = Localizer([tactile_map], model, encoder, calibrations=[calibration], settings=settings)
-    settle = localizer.live.settle_frames
 
-    # The frames: each grasp at rest (settle + hold), then released (gap), with the gripper's pose.
-    background = np.round(np.asarray(model.background) * 255).astype(np.uint8)
+def write_videos(args, work: Path, name: str, records: dict, opposite: dict, background: np.ndarray, settle: int,
+                 label: str):
+    """The frames as lossless videos: each grasp at rest (settle + hold), then released (gap).
+    Returns (video, opposite video or None, per frame: opening, gripper pose, touch index)."""
     frames, opposite_frames, openings, poses, touch_of_frame = [], [], [], [], []
     for t in range(len(records["image"])):
         for k in range(settle + args.hold + args.gap):
@@ -197,13 +171,20 @@ def main() -> None:
             openings.append(float(records["opening_mm"][t]) + (RELEASED_MM if released else 0.0))
             poses.append(records["T_world_gripper"][t].astype(np.float32))
             touch_of_frame.append(t)
-    video = write_video(work / f"{name}-grasps-e{episodes}-g{grasps}.mkv", np.stack(frames), fps=args.fps)
+    work.mkdir(parents=True, exist_ok=True)
+    video = write_video(work / f"{name}-{label}.mkv", np.stack(frames), fps=args.fps)
     opposite_video = None if args.fingers == 1 else write_video(
-        work / f"{name}-grasps-e{episodes}-g{grasps}-opposite.mkv", np.stack(opposite_frames), fps=args.fps)
-    frames_per_episode = grasps * (settle + args.hold + args.gap)
+        work / f"{name}-{label}-opposite.mkv", np.stack(opposite_frames), fps=args.fps)
+    return video, opposite_video, openings, poses, touch_of_frame
 
+
+def play_live(localizer, video, opposite_video, openings, poses, touch_of_frame, frames_per_episode, truth_of,
+              shape) -> tuple[dict, list, np.ndarray, np.ndarray]:
+    """The videos through ``live_estimates``: (summary, belief-update latencies ms, (E, G) errors
+    and P(within 2 mm) after every grasp); ``truth_of(t, T_estimate)`` is a touch's error."""
     statistics, updated_ms = LiveStatistics(), []
-    live_errors, live_probability = np.full((episodes, grasps), np.nan), np.full((episodes, grasps), np.nan)
+    errors, probability = np.full(shape, np.nan), np.full(shape, np.nan)
+    grasps = shape[1]
     next_opening = iter(openings).__next__  # frames come in order: one opening each
     second_camera = None if opposite_video is None else OpenCVCamera(opposite_video, gelslim(scale=0.5))
     with OpenCVCamera(video, gelslim(scale=0.5)) as camera, CompilationCounter() as compiles:
@@ -213,10 +194,8 @@ def main() -> None:
             t = touch_of_frame[frame.index]
             if estimate.updated:
                 updated_ms.append(1e3 * estimate.latency_s)
-                T_estimate = np.asarray(estimate.T_object_sensor.wxyz_xyz)
-                live_errors[t // grasps, t % grasps] = cloud_error(means[t], covariances[t], truth[t], T_estimate,
-                                                                   symmetries)
-                live_probability[t // grasps, t % grasps] = estimate.probability_within
+                errors[t // grasps, t % grasps] = truth_of(t, np.asarray(estimate.T_object_sensor.wxyz_xyz))
+                probability[t // grasps, t % grasps] = estimate.probability_within
             if (frame.index + 1) % frames_per_episode == 0:
                 localizer.reset()  # the object is put down elsewhere
     if second_camera is not None:
@@ -224,78 +203,118 @@ def main() -> None:
     statistics.recompilations = compiles.count
     for message in compiles.messages:
         print("recompiled:", message[:300])
-    live = statistics.summary()
+    return statistics.summary(), updated_ms, errors, probability
 
-    reference = None
-    if not args.no_reference:  # the same grasps, stage by stage through the public API
-        view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
 
-        @jax.jit
-        def observe(image):
-            pixels = image.astype(jnp.float32) / 255.0
-            heightmap, mask = predict(model, pixels)
-            return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
+def stage_by_stage(args, view, model, encoder, settings, records, opposite, shape, truth_of) -> dict:
+    """The reference: the same grasps through ``predict``, ``encode_image`` and ``localize``
+    (continuing each episode's belief), timed per grasp."""
+    @jax.jit
+    def observe(image):
+        pixels = image.astype(jnp.float32) / 255.0
+        heightmap, mask = predict(model, pixels)
+        return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
 
-        def observe_touch(image, opening):
-            heightmap, mask = observe(image)
-            return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=opening)
+    def observe_touch(image, opening):
+        heightmap, mask = observe(image)
+        return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=opening)
 
-        errors, probability = np.full((episodes, grasps), np.nan), np.full((episodes, grasps), np.nan)
-        seconds, skipped = [], 0
-        for e in range(episodes):
-            belief = None
-            for g in range(grasps):
-                t = e * grasps + g
-                start = time.perf_counter()
-                opening = jnp.float32(records["opening_mm"][t])
-                T_world_gripper = jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32))
-                T_world_sensor = sensor_pose(T_world_gripper, opening)
-                touches, T_world_touches = [observe_touch(records["image"][t], opening)], [T_world_sensor]
-                if args.fingers == 2:
-                    touches.append(observe_touch(opposite["image"][t], opening))
-                    T_world_touches.append(opposite_sensor_pose(T_world_gripper, opening))
-                try:
-                    belief = jax.block_until_ready(localize(view, touches, T_world_touches, belief=belief,
-                                                            settings=settings))
-                except ValueError:  # no contact in the episode's first grasp: nothing to localize yet
-                    skipped += 1
-                    continue
-                seconds.append(time.perf_counter() - start)
-                errors[e, g] = cloud_error(means[t], covariances[t], truth[t],
-                                           np.asarray(belief.sensor_pose(T_world_sensor).wxyz_xyz), symmetries)
-                probability[e, g] = float(belief.probability_within())
-        reference = {"ms_per_grasp": {"median": 1e3 * float(np.median(seconds[1:])),
-                                      "p95": 1e3 * float(np.percentile(seconds[1:], 95))},
-                     "first_call_s": seconds[0], "skipped": skipped, "per_grasp": per_grasp(errors, probability)}
+    episodes, grasps = shape
+    errors, probability = np.full(shape, np.nan), np.full(shape, np.nan)
+    seconds, skipped = [], 0
+    for e in range(episodes):
+        belief = None
+        for g in range(grasps):
+            t = e * grasps + g
+            start = time.perf_counter()
+            opening = jnp.float32(records["opening_mm"][t])
+            T_world_gripper = jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32))
+            T_world_sensor = sensor_pose(T_world_gripper, opening)
+            touches, T_world_touches = [observe_touch(records["image"][t], opening)], [T_world_sensor]
+            if args.fingers == 2:
+                touches.append(observe_touch(opposite["image"][t], opening))
+                T_world_touches.append(opposite_sensor_pose(T_world_gripper, opening))
+            try:
+                belief = jax.block_until_ready(localize(view, touches, T_world_touches, belief=belief,
+                                                        settings=settings))
+            except ValueError:  # no contact in the episode's first grasp: nothing to localize yet
+                skipped += 1
+                continue
+            seconds.append(time.perf_counter() - start)
+            errors[e, g] = truth_of(t, np.asarray(belief.sensor_pose(T_world_sensor).wxyz_xyz))
+            probability[e, g] = float(belief.probability_within())
+    return {"ms_per_grasp": {"median": 1e3 * float(np.median(seconds[1:])),
+                             "p95": 1e3 * float(np.percentile(seconds[1:], 95))},
+            "first_call_s": seconds[0], "skipped": skipped, "per_grasp": per_grasp(errors, probability)}
 
-    live_rows = per_grasp(live_errors, live_probability)
+
+def print_results(result: dict) -> None:
+    live, reference, updated = result["live"], result["reference"], result["belief_update_ms"]
+    episodes, grasps, fingers = result["episodes"], result["grasps_per_episode"], result["fingers"]
+    loop = (f"live: {episodes} episodes x {grasps} grasps x {fingers} finger{'s' * (fingers > 1)}, each "
+            f"{result['settle_frames']}+{result['hold_frames']} frames at rest + {result['gap_frames']} released")
+    latency = live["latency_ms"]
     print(format_table(
         ["loop", "frames", "rate (Hz)", "latency median / p95 / max (ms)", "belief updates: median / max (ms)",
          "recompilations"],
-        [[f"live: {episodes} episodes x {grasps} grasps x {args.fingers} finger{'s' * (args.fingers > 1)}, each {settle}+{args.hold} frames at rest + {args.gap} "
-          "released", live["frames"], f"{live['rate_hz']:.1f}",
-          f"{live['latency_ms']['median']:.1f} / {live['latency_ms']['p95']:.1f} / {live['latency_ms']['max']:.1f}",
-          f"{np.median(updated_ms):.1f} / {np.max(updated_ms):.1f}" if updated_ms else "-", live["recompilations"]]]))
+        [[loop, live["frames"], f"{live['rate_hz']:.1f}",
+          f"{latency['median']:.1f} / {latency['p95']:.1f} / {latency['max']:.1f}",
+          "-" if updated["median"] is None else f"{updated['median']:.1f} / {updated['max']:.1f}",
+          live["recompilations"]]]))
     headers = ["after grasp", "live: estimates", "median RMSE (mm)", "<= 2 mm", "mean P(<= 2 mm)"]
     rows = [[r["grasp"], r["estimates"], r["median_rmse_mm"], r["within_2mm"], r["mean_p_within_2mm"]]
-            for r in live_rows]
+            for r in result["per_grasp"]]
     if reference is not None:
         headers += ["reference: median RMSE (mm)", "<= 2 mm"]
         rows = [row + [r["median_rmse_mm"], r["within_2mm"]] for row, r in zip(rows, reference["per_grasp"])]
     print(format_table(headers, rows))
-    print(f"start-up compile: {localizer.compile_s:.1f} s; errors up to the {name}'s {len(symmetries[1])} "
-          f"symmetries; belief calibration: {'stored' if calibration is not None else 'none (default)'}")
+    print(f"start-up compile: {result['compile_s']:.1f} s; errors up to the {result['object']}'s "
+          f"{result['symmetries']} symmetries; belief calibration: "
+          f"{'stored' if result['calibrated'] else 'none (default)'}")
     if reference is not None:
         print(f"reference (stage by stage, localize() per grasp): {reference['ms_per_grasp']['median']:.1f} ms "
               f"median per grasp (first call, compiling: {reference['first_call_s']:.1f} s)")
+
+
+def main() -> None:
+    args = parse_args()
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    ((tactile_map, calibration),) = load_maps(args, model, encoder)
+    name = tactile_map.object_id
+    test = new_grasps_set(args, name, episodes=args.episodes, grasps=args.grasps, fingers=args.fingers)
+    records, opposite, episodes, grasps = read_episodes(args, test, name)
+    truth, means, covariances, symmetries = ground_truth(records, name, tactile_map.mm_per_px)
+
+    def truth_of(t, T_estimate):
+        return cloud_error(means[t], covariances[t], truth[t], T_estimate, symmetries)
+
+    print(f"compiling the live programs ({name}: {len(tactile_map)} imprints) ...", flush=True)
+    settings = BeliefSettings()
+    localizer = Localizer([tactile_map], model, encoder, calibrations=[calibration], settings=settings)
+    settle = localizer.live.settle_frames
+    background = np.round(np.asarray(model.background) * 255).astype(np.uint8)
+    video, opposite_video, openings, poses, touch_of_frame = write_videos(
+        args, Path(args.work), name, records, opposite, background, settle, f"grasps-e{episodes}-g{grasps}")
+    live, updated_ms, errors, probability = play_live(
+        localizer, video, opposite_video, openings, poses, touch_of_frame, grasps * (settle + args.hold + args.gap),
+        truth_of, (episodes, grasps))
+    reference = None
+    if not args.no_reference:
+        view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
+        reference = stage_by_stage(args, view, model, encoder, settings, records, opposite, (episodes, grasps),
+                                   truth_of)
+    result = {
+        "object": name, "map_imprints": len(tactile_map), "test": str(test), "episodes": episodes,
+        "grasps_per_episode": grasps, "fingers": args.fingers, "settle_frames": settle, "hold_frames": args.hold,
+        "gap_frames": args.gap, "video": str(video), "calibrated": calibration is not None,
+        "compile_s": localizer.compile_s, "live": live,
+        "belief_update_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,
+                             "max": float(np.max(updated_ms)) if updated_ms else None},
+        "per_grasp": per_grasp(errors, probability), "reference": reference, "symmetries": len(symmetries[1]),
+        "seed": args.seed, "machine": machine_info()}
+    print_results(result)
     if args.json:
-        write_json(args.json, {
-            "object": name, "map_imprints": len(tactile_map), "test": str(test), "episodes": episodes,
-            "grasps_per_episode": grasps, "fingers": args.fingers, "settle_frames": settle, "hold_frames": args.hold, "gap_frames": args.gap,
-            "video": str(video), "calibrated": calibration is not None, "compile_s": localizer.compile_s,
-            "live": live, "belief_update_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,
-                                               "max": float(np.max(updated_ms)) if updated_ms else None},
-            "per_grasp": live_rows, "reference": reference, "machine": machine_info()})
+        write_json(args.json, result)
         print(f"wrote {args.json}")
 
 

@@ -36,9 +36,9 @@ import jax
 import numpy as np
 
 try:
-    from benchmarks._common import format_table, machine_info, time_call, write_json
+    from benchmarks._common import add_common_arguments, format_table, machine_info, time_call, write_json
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, time_call, write_json
+    from _common import add_common_arguments, format_table, machine_info, time_call, write_json
 
 from tactojax.io import load_shape_data, load_shape_model, shape_model_metadata
 from tactojax.objects import CALIBRATION_SHAPES, get_object
@@ -49,14 +49,15 @@ from tactojax.shape import (TrainConfig, balanced_subset, build_network, evaluat
 from tactojax.simulate import CalibrationProtocol, simulate_to_dataset
 
 
-def simulate_calibration(work: Path, sensor: str, scale: float, touches: int) -> Path:
-    """The calibration protocol on the 5 shapes, simulated once into ``work``."""
-    path = work / f"calibration-{sensor}-{scale}-{touches}"
+def simulate_calibration(work: Path, sensor: str, scale: float, touches: int, seed: int = 0) -> Path:
+    """The calibration protocol on the 5 shapes, simulated once into ``work`` (shape ``i`` with
+    key ``seed * 5 + i``)."""
+    path = work / (f"calibration-{sensor}-{scale}-{touches}" + ("" if seed == 0 else f"-seed{seed}"))
     if (path / "manifest.json").exists():
         return path
     spec = sensor_preset(sensor, scale=scale)
     for index, name in enumerate(CALIBRATION_SHAPES):
-        simulate_to_dataset(path, jax.random.key(index), spec, get_object(name),
+        simulate_to_dataset(path, jax.random.key(seed * len(CALIBRATION_SHAPES) + index), spec, get_object(name),
                             CalibrationProtocol(touches=touches))
     return path
 
@@ -146,7 +147,7 @@ def speed(sensor: str, repeats: int) -> list[dict]:
     return rows
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", default="benchmark-data/local_shape", help="simulated data cache")
     parser.add_argument("--scale", type=float, default=0.5, help="gelslim resolution factor for training")
@@ -157,12 +158,73 @@ def main() -> None:
     parser.add_argument("--paper-steps", type=int, default=0, help="train the paper preset (slow on CPU)")
     parser.add_argument("--paper-model", metavar="PATH", help="evaluate this trained paper checkpoint instead")
     parser.add_argument("--skip-table", action="store_true", help="skip Table I and the learning curve")
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--quick", action="store_true", help="smoke run: 60 touches, short training")
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="60 touches, short training", seed_help="simulated calibration data",
+                         repeats=10, repeats_help="steady-state calls per speed row")
     args = parser.parse_args()
     if args.quick:
         args.touches, args.pairs, args.repeats, args.scale, args.other_scale = 60, 100, 3, 0.25, 0.125
+    return args
+
+
+def table_and_curve(args, results: dict, train, test, configs: dict, full_models: dict, save) -> None:
+    """Table I and the learning curve, printed and kept in ``results``."""
+    shapes = train.objects
+    results["table1"] = table_one(train, test, ["fast", "lookup"], configs, args.pairs, full_models)
+    print("\nTable I: contact-patch RMSE (mm) of models trained without one shape (paper: all "
+          "0.062-0.077, removed 0.073-0.167)")
+    rows = []
+    for method, table in results["table1"].items():
+        rows.append([f"{method} all (none removed)", *[table["none removed"]["all"][s] for s in shapes]])
+        rows.append([f"{method} all", *[table[s]["all"] for s in shapes]])
+        rows.append([f"{method} removed", *[table[s]["removed"] for s in shapes]])
+    print(format_table(["model / test set", *shapes], rows))
+    save()
+    sizes = [args.pairs // 4, args.pairs // 2, args.pairs]
+    results["learning_curve"] = learning_curve(train, test, ["fast", "lookup"], configs, sizes, full_models)
+    print("\nLearning curve: contact-patch RMSE (mm), all test pairs (paper: ~0.1 at 500, 0.060 at 2000)")
+    print(format_table(["pairs", *results["learning_curve"]],
+                       [[size, *[results["learning_curve"][m].get(size) for m in results["learning_curve"]]]
+                        for size in sizes]))
+    save()
+
+
+def paper_preset(args, results: dict, subset, test, fast_model) -> None:
+    """The ``paper`` preset trained here (``--paper-steps``) or read (``--paper-model``), against ``fast``."""
+    if args.paper_model:
+        paper_model = load_shape_model(args.paper_model)
+        metadata = shape_model_metadata(args.paper_model)
+        training = {"checkpoint": args.paper_model, "steps": metadata["config"]["steps"],
+                    "train_s": metadata.get("train_seconds"), "crop_px": metadata["config"]["crop_px"]}
+    else:
+        paper_model, seconds = fit("paper", subset, TrainConfig(steps=args.paper_steps, crop_px=40, batch_size=8))
+        training = {"steps": args.paper_steps, "train_s": seconds, "crop_px": 40}
+    results["paper_preset"] = {**training, "per_shape": patch_rmse(paper_model, test),
+                               "robustness": robustness_study(paper_model, test)}
+    results["robustness"]["paper"] = results["paper_preset"]["robustness"]
+    columns = [*subset.objects, "all"]
+    print("\npaper preset, trained on all shapes: contact-patch RMSE (mm)")
+    print(format_table(["model", *columns], [["paper", *[results["paper_preset"]["per_shape"][s] for s in columns]],
+                                             ["fast", *[patch_rmse(fast_model, test)[s] for s in columns]]]))
+
+
+def other_sensor(args, results: dict, work: Path, test_per_object: int, configs: dict) -> None:
+    """``fast`` and ``lookup`` trained and tested on ``--other-sensor``'s simulated data."""
+    other = load_shape_data(simulate_calibration(work, args.other_sensor, args.other_scale, args.touches,
+                                                 args.seed))
+    other_train, other_test = split_held_out(other, test_per_object)
+    other_train = balanced_subset(other_train, min(args.pairs, len(other_train)))
+    results["other_sensor"] = {
+        "sensor": args.other_sensor, "scale": args.other_scale,
+        "image": list(other.images.shape[1:3]), "mm_per_px": other.mm_per_px,
+        **{m: patch_rmse(fit(m, other_train, configs[m])[0], other_test) for m in ("fast", "lookup")}}
+    print(f"\n{args.other_sensor} x{args.other_scale} ({other.mm_per_px:.3f} mm/px): contact-patch RMSE (mm)")
+    print(format_table(["model", *other.objects, "all"],
+                       [[m, *[results["other_sensor"][m][s] for s in [*other.objects, "all"]]]
+                        for m in ("fast", "lookup")]))
+
+
+def main() -> None:
+    args = parse_args()
     config = TrainConfig() if not args.quick else TrainConfig(steps=10, pixel_steps=100)
     configs = {"fast": config, "lookup": None}
     work = Path(args.work)
@@ -173,12 +235,10 @@ def main() -> None:
         if args.json:
             write_json(args.json, results)
 
-    data = load_shape_data(simulate_calibration(work, "gelslim", args.scale, args.touches))
+    data = load_shape_data(simulate_calibration(work, "gelslim", args.scale, args.touches, args.seed))
     train, test = split_held_out(data, test_per_object)
-    shapes = train.objects
     print(f"gelslim x{args.scale}: {data.images.shape[1]}x{data.images.shape[2]} px, "
           f"{len(train)} train / {len(test)} test pairs")
-
     subset = balanced_subset(train, min(args.pairs, len(train)))
     fast_model, results["time_to_0.06mm"] = train_with_trace(subset, test, config, 0.06,
                                                              every=100 if not args.quick else 50)
@@ -186,64 +246,18 @@ def main() -> None:
     lookup_model, _ = fit("lookup", subset, None)
     full_models = {"fast": fast_model, "lookup": lookup_model}
     save()
-
     if not args.skip_table:
-        results["table1"] = table_one(train, test, ["fast", "lookup"], configs, args.pairs, full_models)
-        print("\nTable I: contact-patch RMSE (mm) of models trained without one shape (paper: all "
-              "0.062-0.077, removed 0.073-0.167)")
-        rows = []
-        for method, table in results["table1"].items():
-            rows.append([f"{method} all (none removed)", *[table["none removed"]["all"][s] for s in shapes]])
-            rows.append([f"{method} all", *[table[s]["all"] for s in shapes]])
-            rows.append([f"{method} removed", *[table[s]["removed"] for s in shapes]])
-        print(format_table(["model / test set", *shapes], rows))
-        save()
-
-        sizes = [args.pairs // 4, args.pairs // 2, args.pairs]
-        results["learning_curve"] = learning_curve(train, test, ["fast", "lookup"], configs, sizes, full_models)
-        print("\nLearning curve: contact-patch RMSE (mm), all test pairs (paper: ~0.1 at 500, 0.060 at 2000)")
-        print(format_table(["pairs", *results["learning_curve"]],
-                           [[size, *[results["learning_curve"][m].get(size) for m in results["learning_curve"]]]
-                            for size in sizes]))
-        save()
-
+        table_and_curve(args, results, train, test, configs, full_models, save)
     results["robustness"] = {"fast": robustness_study(fast_model, test), "lookup": robustness_study(lookup_model, test)}
     if args.paper_steps or args.paper_model:
-        if args.paper_model:
-            paper_model = load_shape_model(args.paper_model)
-            metadata = shape_model_metadata(args.paper_model)
-            training = {"checkpoint": args.paper_model, "steps": metadata["config"]["steps"],
-                        "train_s": metadata.get("train_seconds"), "crop_px": metadata["config"]["crop_px"]}
-        else:
-            paper_config = TrainConfig(steps=args.paper_steps, crop_px=40, batch_size=8)
-            paper_model, seconds = fit("paper", subset, paper_config)
-            training = {"steps": args.paper_steps, "train_s": seconds, "crop_px": 40}
-        results["paper_preset"] = {**training, "per_shape": patch_rmse(paper_model, test),
-                                   "robustness": robustness_study(paper_model, test)}
-        results["robustness"]["paper"] = results["paper_preset"]["robustness"]
-        print("\npaper preset, trained on all shapes: contact-patch RMSE (mm)")
-        print(format_table(["model", *shapes, "all"],
-                           [["paper", *[results["paper_preset"]["per_shape"][s] for s in [*shapes, "all"]]],
-                            ["fast", *[patch_rmse(fast_model, test)[s] for s in [*shapes, "all"]]]]))
+        paper_preset(args, results, subset, test, fast_model)
     print("\nRobustness: contact-patch RMSE (mm) on all test pairs, conditions never seen in training")
     conditions = list(results["robustness"]["fast"])
     print(format_table(["model", *conditions],
                        [[m, *[r[c]["patch_rmse"] for c in conditions]] for m, r in results["robustness"].items()]))
     save()
-
     if args.other_sensor:
-        other = load_shape_data(simulate_calibration(work, args.other_sensor, args.other_scale, args.touches))
-        other_train, other_test = split_held_out(other, test_per_object)
-        other_train = balanced_subset(other_train, min(args.pairs, len(other_train)))
-        results["other_sensor"] = {
-            "sensor": args.other_sensor, "scale": args.other_scale,
-            "image": list(other.images.shape[1:3]), "mm_per_px": other.mm_per_px,
-            **{m: patch_rmse(fit(m, other_train, configs[m])[0], other_test) for m in ("fast", "lookup")}}
-        print(f"\n{args.other_sensor} x{args.other_scale} ({other.mm_per_px:.3f} mm/px): contact-patch RMSE (mm)")
-        print(format_table(["model", *other.objects, "all"],
-                           [[m, *[results["other_sensor"][m][s] for s in [*other.objects, "all"]]]
-                            for m in ("fast", "lookup")]))
-
+        other_sensor(args, results, work, test_per_object, configs)
     results["speed"] = speed("gelslim", args.repeats)
     print("\nSpeed of predict at the full gelslim resolution (240 x 320), compile time apart")
     print(format_table(["preset", "MACs/px", "images/s (1)", "images/s (16)", "compile s (16)"],

@@ -17,8 +17,10 @@ Errors are the paper's cloud RMSE up to the object's symmetry (the catalog's). A
 belief calibration (``tactojax calibrate-belief``) is used when it has one.
 
     python benchmarks/localization_ceiling.py scissors.npz screwdriver.npz --queries 200 --json ceiling.json
+    python benchmarks/localization_ceiling.py --quick   # smoke run: 10 queries, 2 folds, scissors on a 20 mm map
 
-Maps without features are encoded with ``--encoder`` first (the CLI default).
+Maps are encoded with ``--encoder`` (the CLI default) unless they store its features; without a
+map, ``--object`` is simulated and mapped.
 """
 
 from __future__ import annotations
@@ -30,18 +32,15 @@ import jaxlie
 import numpy as np
 from tqdm.auto import tqdm
 
-from tactojax.features import encode_images
-from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, tactile_map_metadata
-from tactojax.localize import LocalizationMap, calibration_from_json, evaluate_localization
-# Retrieval and the oracle's nearest imprints, looked at apart (not the public API):
-from tactojax.localize._evaluate import cloud_moments, moment_rmse, oracle_imprints
-from tactojax.localize._map import map_touch
-from tactojax.localize._retrieval import closest_imprints
+from tactojax.io import resolve_encoder, resolve_shape_model
+# Retrieval and the oracle's nearest imprints, looked at apart:
+from tactojax.localize import (LocalizationMap, closest_imprints, cloud_moments, evaluate_localization, map_touch,
+                               moment_rmse, oracle_imprints)
 
 try:  # run as ``python benchmarks/localization_ceiling.py`` or as a module
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, write_json
 except ImportError:
-    from _common import format_table, machine_info, write_json
+    from _common import add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, write_json
 
 NEAR_MM = 3.0
 """A retrieved imprint is a true neighbour within this of the best stored pose (cloud RMSE), mm."""
@@ -88,9 +87,9 @@ def retrieval_recall(tactile_map, queries: np.ndarray, recall_at=(1, 5, 15, 50),
 
 
 def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50), *, calibration=None,
-            folds: int = 10) -> dict:
+            folds: int = 10, seed: int = 0) -> dict:
     """The three diagnostics of the module docstring for one map (a JSON-ready dict)."""
-    key = jax.random.key(0)
+    key = jax.random.key(seed)
     method = f"cti-icp-{n}"
     recall = retrieval_recall(tactile_map, queries, recall_at)
     results = evaluate_localization(key, tactile_map, [method, "belief"], calibration=calibration, queries=queries,
@@ -111,29 +110,21 @@ def ceiling(tactile_map, n: int, queries: np.ndarray, recall_at=(1, 5, 15, 50), 
     }
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("maps", nargs="+", help="saved maps (.npz)")
-    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="for maps without features (default: the CLI's)")
+    add_map_arguments(parser, several=True)
     parser.add_argument("--n", type=int, default=5, help="N of CTI-ICP-N (default 5)")
     parser.add_argument("--folds", type=int, default=10, help="the belief's queries are held out of the map's "
                                                                "surface in this many folds (default 10)")
     parser.add_argument("--queries", type=int, default=200, help="leave-one-out queries per map (default 200)")
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="10 queries, 2 folds, a 20 mm map", seed_help="query choice and keys")
     args = parser.parse_args()
+    if args.quick:
+        args.queries, args.folds = min(args.queries, 10), min(args.folds, 2)
+    return args
 
-    results = []
-    for path in args.maps:
-        tactile_map = load_tactile_map(path)
-        if tactile_map.features.shape[1] == 0:
-            tactile_map = tactile_map.with_features(encode_images(resolve_encoder(args.encoder), tactile_map.images,
-                                                                  progress=True))
-        valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
-        queries = np.sort(np.random.default_rng(0).choice(valid, size=min(args.queries, len(valid)), replace=False))
-        stored = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
-        calibration = None if stored is None else calibration_from_json(stored)
-        results.append(ceiling(tactile_map, args.n, queries, calibration=calibration, folds=args.folds))
 
+def print_results(args, results: list[dict]) -> None:
     recall_keys = list(results[0]["recall"])
 
     def cell(entry):
@@ -147,10 +138,24 @@ def main() -> None:
                f"{100 * r['belief_wrong_but_sure']:.0f} % of {r['belief_wrong']}"] for r in results]
     print(format_table(headers, rows))
     print("errors: cloud RMSE up to the object's symmetry")
+
+
+def main() -> None:
+    args = parse_args()
+    model = None if args.maps else resolve_shape_model(args.model)  # only to map --object
+    results = []
+    for tactile_map, calibration in load_maps(args, model, resolve_encoder(args.encoder)):
+        valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
+        queries = np.sort(np.random.default_rng(args.seed).choice(valid, size=min(args.queries, len(valid)),
+                                                                  replace=False))
+        results.append(ceiling(tactile_map, args.n, queries, calibration=calibration, folds=args.folds,
+                               seed=args.seed))
+    print_results(args, results)
     if args.json:
         write_json(args.json, {"results": results, "near_mm": NEAR_MM, "wrong_mm": WRONG_MM, "sure": SURE,
-                               "machine": machine_info()})
+                               "seed": args.seed, "machine": machine_info()})
         print(f"wrote {args.json}")
+
 
 if __name__ == "__main__":
     main()

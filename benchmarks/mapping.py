@@ -14,7 +14,8 @@ protocol: grasps on a grid in the plane of the gripper, yaws 0 / +-20 deg, the o
 3. Kinematic noise: the 10 mm maps rebuilt with the recorded gripper poses and openings
    perturbed (``tactojax.mapping.NOISE_LEVELS``: low, realistic, high), fits and quality again.
 
-Run from the repository root (data is simulated into --work once and reused):
+Run from the repository root (data is simulated into --work once and reused, shared with the
+other benchmarks):
 
     python benchmarks/mapping.py --json results/mapping.json --figures results/maps
     python benchmarks/mapping.py --quick          # smoke run: 20 mm grid, two shapes
@@ -31,17 +32,17 @@ import jax
 import numpy as np
 
 try:
-    from benchmarks._common import format_table, machine_info, write_json
+    from benchmarks._common import (DEFAULT_MODEL, WORK, add_common_arguments, format_table, machine_info, simulated,
+                                    write_json)
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, write_json
+    from _common import DEFAULT_MODEL, WORK, add_common_arguments, format_table, machine_info, simulated, write_json
 
 from tactojax.io import read_grasps, resolve_shape_model
 from tactojax.mapping import (NOISE_LEVELS, build_tactile_map, fit_shape_to_clouds, perturb_kinematics,
                               shape_fit_clouds, shape_fit_errors, stitched_point_cloud, surface_distance,
                               true_shape_parameters)
 from tactojax.objects import TABLE2_SHAPES, get_object
-from tactojax.sensor import sensor_preset
-from tactojax.simulate import MappingProtocol, simulate_to_dataset
+from tactojax.simulate import MappingProtocol
 
 SHAPE_KIND = {"cylinder": "cylinder", "semicone": "semicone", "double_cylinder": "double-cylinder",
               "cuboid": "cuboid", "semipyramid": "semipyramid"}
@@ -55,13 +56,9 @@ PAPER_TABLE2 = {  # (shape, parameter): (paper's estimate, paper's relative erro
 }
 
 
-def simulate_mapping(work: Path, name: str, grid_mm: float, scale: float) -> Path:
-    """The mapping protocol on one object, simulated once into ``work``."""
-    path = work / f"mapping-{name}-grid{grid_mm:g}-gelslim{scale:g}"
-    if not (path / "manifest.json").exists():
-        simulate_to_dataset(path, jax.random.key(0), sensor_preset("gelslim", scale=scale), get_object(name),
-                            MappingProtocol(grid_mm=grid_mm))
-    return path
+def simulate_mapping(work, name: str, grid_mm: float, scale: float, seed: int) -> Path:
+    """The mapping protocol on one object, simulated once into ``work`` (shared with the other benchmarks)."""
+    return simulated(work, name, MappingProtocol(grid_mm=grid_mm), f"map-grid{grid_mm:g}", seed=seed, scale=scale)
 
 
 def map_and_fit(model, path: Path, name: str, *, noise: str = "none", seed: int = 0, refine_contact: bool = True):
@@ -102,10 +99,10 @@ def _value(name: str, x: float) -> str:
     return f"{np.rad2deg(x):.2f} deg" if name.endswith("_rad") else f"{x:.2f}"
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--work", default="benchmark-data/mapping", help="simulated data cache")
-    parser.add_argument("--model", default="bundled:fast-gelslim-0.5", help="shape model")
+    parser.add_argument("--work", default=WORK, help=f"simulated data cache (default {WORK})")
+    parser.add_argument("--model", default=DEFAULT_MODEL, help="shape model")
     parser.add_argument("--scale", type=float, default=0.5, help="gelslim resolution factor (the model's)")
     parser.add_argument("--grids", default="5,10,20", help="grid spacings for the map-quality study, mm")
     parser.add_argument("--noise", default="low,realistic,high", help="kinematic noise levels ('' to skip)")
@@ -113,32 +110,28 @@ def main() -> None:
     parser.add_argument("--figures", metavar="DIR", help="save a figure of every 10 mm map here")
     parser.add_argument("--plain-fit", action="store_true",
                         help="fit the map's own points (no skirt removal, depth everywhere)")
-    parser.add_argument("--quick", action="store_true", help="smoke run: 20 mm grid, two shapes, one noise level")
-    parser.add_argument("--json", metavar="PATH")
+    add_common_arguments(parser, quick="20 mm grid, two shapes, one noise level",
+                         seed_help="simulated data and kinematic noise")
     args = parser.parse_args()
-    shapes = args.shapes.split(",") if not args.quick else ["cylinder", "cuboid"]
-    grids = [float(g) for g in args.grids.split(",")] if not args.quick else [20.0]
-    table_grid = 10.0 if 10.0 in grids else grids[0]
-    noise_levels = [n for n in args.noise.split(",") if n] if not args.quick else ["realistic"]
-    work = Path(args.work)
-    model = resolve_shape_model(args.model)
-    results: dict = {"machine": machine_info(), "settings": vars(args), "grids": {}, "noise": {}}
+    args.shapes = args.shapes.split(",") if not args.quick else ["cylinder", "cuboid"]
+    args.grids = [float(g) for g in args.grids.split(",")] if not args.quick else [20.0]
+    args.noise = [n for n in args.noise.split(",") if n] if not args.quick else ["realistic"]
+    return args
 
-    def save():
-        if args.json:
-            write_json(args.json, results)
 
-    for grid in grids:
+def grid_study(args, model, results: dict, save) -> None:
+    """Every shape mapped and fitted at every grid spacing (a figure of the Table II maps)."""
+    for grid in args.grids:
         results["grids"][grid] = {}
-        for name in shapes:
-            tactile_map, result = map_and_fit(model, simulate_mapping(work, name, grid, args.scale), name,
-                                              refine_contact=not args.plain_fit)
+        for name in args.shapes:
+            tactile_map, result = map_and_fit(model, simulate_mapping(args.work, name, grid, args.scale, args.seed),
+                                              name, refine_contact=not args.plain_fit)
             results["grids"][grid][name] = result
             print(f"grid {grid:g} mm, {name}: {result['with_contact']} imprints, max error "
                   f"{_percent(result['max_relative_error'])}, map points "
                   f"{result['surface_distance_mm']['mean']:.3f} mm from the surface (fitted depth points "
                   f"{result['fit_cloud_surface_distance_mm']['depth']['mean']:.3f} mm)", flush=True)
-            if args.figures and grid == table_grid:
+            if args.figures and grid == args.table_grid:
                 from tactojax.viz import tactile_map_figure
 
                 points, _ = stitched_point_cloud(tactile_map)
@@ -146,43 +139,68 @@ def main() -> None:
                                    title=f"{name}: {result['with_contact']} imprints, grid {grid:g} mm")
             save()
 
+
+def print_grid_study(args, results: dict) -> None:
     rows = []
-    for name in shapes:
-        for parameter, error in results["grids"][table_grid][name]["parameters"].items():
+    for name in args.shapes:
+        for parameter, error in results["grids"][args.table_grid][name]["parameters"].items():
             paper = PAPER_TABLE2.get((name, parameter), (float("nan"), float("nan")))
             rows.append([name, parameter, _value(parameter, error["true"]), _value(parameter, error["estimate"]),
                          _percent(abs(error["relative_error"])), _value(parameter, paper[0]), f"{paper[1]} %"])
-    print(f"\nTable II: parameters fitted to the tactile maps ({table_grid:g} mm grid); paper: every "
+    print(f"\nTable II: parameters fitted to the tactile maps ({args.table_grid:g} mm grid); paper: every "
           "parameter within 5.5 %")
     print(format_table(["shape", "parameter", "true", "estimate", "error", "paper estimate", "paper error"], rows))
-
     print("\nMap quality against the grid spacing: mean distance of map points to the true surface "
           "(mm) / worst parameter error")
-    print(format_table(["shape", *[f"grid {g:g} mm" for g in grids]],
+    print(format_table(["shape", *[f"grid {g:g} mm" for g in args.grids]],
                        [[name, *[f"{results['grids'][g][name]['surface_distance_mm']['mean']:.3f} / "
-                                 f"{_percent(results['grids'][g][name]['max_relative_error'])}" for g in grids]]
-                        for name in shapes]))
-    save()
+                                 f"{_percent(results['grids'][g][name]['max_relative_error'])}" for g in args.grids]]
+                        for name in args.shapes]))
 
-    for level in noise_levels:
+
+def noise_study(args, model, results: dict, save) -> None:
+    """The Table II grid's maps rebuilt with perturbed kinematics, fitted and measured again."""
+    for level in args.noise:
         results["noise"][level] = {"model": dataclasses.asdict(NOISE_LEVELS[level])}
-        for name in shapes:
-            _, result = map_and_fit(model, simulate_mapping(work, name, table_grid, args.scale), name, noise=level,
-                                    refine_contact=not args.plain_fit)
+        for name in args.shapes:
+            path = simulate_mapping(args.work, name, args.table_grid, args.scale, args.seed)
+            _, result = map_and_fit(model, path, name, noise=level, seed=args.seed, refine_contact=not args.plain_fit)
             results["noise"][level][name] = result
         save()
-    if noise_levels:
-        clean = results["grids"][table_grid]
-        levels = ["none", *noise_levels]
-        print(f"\nKinematic noise ({table_grid:g} mm grid): worst parameter error / mean distance to the surface (mm)")
-        for level in noise_levels:
-            noise = NOISE_LEVELS[level]
-            print(f"  {level}: gripper position sigma {noise.translation_mm} mm, orientation sigma "
-                  f"{noise.rotation_deg} deg, opening sigma {noise.opening_mm} mm per grasp")
-        print(format_table(["shape", *levels],
-                           [[name, *[f"{_percent((clean if lv == 'none' else results['noise'][lv])[name]['max_relative_error'])}"
-                                     f" / {(clean if lv == 'none' else results['noise'][lv])[name]['surface_distance_mm']['mean']:.3f}"
-                                     for lv in levels]] for name in shapes]))
+
+
+def print_noise_study(args, results: dict) -> None:
+    clean = results["grids"][args.table_grid]
+    levels = ["none", *args.noise]
+    print(f"\nKinematic noise ({args.table_grid:g} mm grid): worst parameter error / mean distance to the surface (mm)")
+    for level in args.noise:
+        noise = NOISE_LEVELS[level]
+        print(f"  {level}: gripper position sigma {noise.translation_mm} mm, orientation sigma "
+              f"{noise.rotation_deg} deg, opening sigma {noise.opening_mm} mm per grasp")
+
+    def cell(level, name):
+        entry = (clean if level == "none" else results["noise"][level])[name]
+        return f"{_percent(entry['max_relative_error'])} / {entry['surface_distance_mm']['mean']:.3f}"
+
+    print(format_table(["shape", *levels], [[name, *[cell(level, name) for level in levels]] for name in args.shapes]))
+
+
+def main() -> None:
+    args = parse_args()
+    args.table_grid = 10.0 if 10.0 in args.grids else args.grids[0]
+    model = resolve_shape_model(args.model)
+    results: dict = {"machine": machine_info(), "settings": dict(vars(args)), "grids": {}, "noise": {}}
+
+    def save():  # after every section, so an interrupted run keeps what it measured
+        if args.json:
+            write_json(args.json, results)
+
+    grid_study(args, model, results, save)
+    print_grid_study(args, results)
+    save()
+    noise_study(args, model, results, save)
+    if args.noise:
+        print_noise_study(args, results)
     save()
     if args.json:
         print(f"\nwrote {args.json}")

@@ -41,9 +41,9 @@ from tactojax.sensor import gel_surface, gelsight, gelslim, render_image
 from tactojax.simulate import simulate_grasps
 
 try:
-    from benchmarks._common import format_table, machine_info, time_call, write_json
+    from benchmarks._common import add_common_arguments, format_table, machine_info, time_call, write_json
 except ImportError:  # run as a script: benchmarks/ itself is on sys.path
-    from _common import format_table, machine_info, time_call, write_json
+    from _common import add_common_arguments, format_table, machine_info, time_call, write_json
 
 
 def ball_presses(spec, batch: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -68,12 +68,12 @@ def ball_presses(spec, batch: int, seed: int = 0) -> tuple[np.ndarray, np.ndarra
     return np.asarray(rigid, np.float32), np.asarray(taxim_heights, np.float32)
 
 
-def bench_optical(batch: int, repeats: int) -> list[dict[str, Any]]:
+def bench_optical(batch: int, repeats: int, seed: int = 0) -> list[dict[str, Any]]:
     """Section 1: images/s of ours vs Taxim JAX at 480 x 640 on the same ball presses."""
     import taxim
 
     spec = gelsight(noise_std=0.0)
-    rigid, taxim_heights = ball_presses(spec, batch)
+    rigid, taxim_heights = ball_presses(spec, batch, seed)
     rigid, taxim_heights = jnp.asarray(rigid), jnp.asarray(taxim_heights)
     render_only = jax.jit(jax.vmap(render_image, in_axes=(None, 0)))
     with_gel = jax.jit(jax.vmap(lambda s, h: render_image(s, gel_surface(s, h)), in_axes=(None, 0)))
@@ -103,12 +103,12 @@ def top_down_grasps(count: int, seed: int = 0) -> jaxlie.SE3:
     return jaxlie.SE3.from_rotation_and_translation(rotations, jnp.asarray(positions, jnp.float32))
 
 
-def bench_grasps(batch: int, repeats: int) -> dict[str, Any]:
+def bench_grasps(batch: int, repeats: int, seed: int = 0) -> dict[str, Any]:
     """Section 2: grasps/s of simulate_grasps on the YCB scissors with the GelSlim sensor."""
     spec, obj = gelslim(), get_object("scissors")
     T_world_object = jaxlie.SE3.identity()
-    T_world_gripper = top_down_grasps(batch)
-    key = jax.random.key(0)
+    T_world_gripper = top_down_grasps(batch, seed)
+    key = jax.random.key(seed)
     fn = lambda: simulate_grasps(key, spec, obj, T_world_object, T_world_gripper)  # noqa: E731
     timing = time_call(fn, repeats=repeats)
     valid = float(jnp.mean(fn().valid))
@@ -118,7 +118,7 @@ def bench_grasps(batch: int, repeats: int) -> dict[str, Any]:
             "valid_fraction": valid, **timing}
 
 
-def bench_protocol() -> dict[str, Any]:
+def bench_protocol(seed: int = 0) -> dict[str, Any]:
     """Section 3: wall time of one full simulated mapping protocol on the scissors."""
     name = "protocol: scissors, full mapping"
     try:
@@ -128,7 +128,7 @@ def bench_protocol() -> dict[str, Any]:
     spec, obj, protocol = gelslim(), get_object("scissors"), MappingProtocol()
     planned = len(mapping_plan(obj, protocol))
     start = time.perf_counter()
-    batches = list(simulate_protocol(jax.random.key(0), spec, obj, protocol, progress=False))
+    batches = list(simulate_protocol(jax.random.key(seed), spec, obj, protocol, progress=False))
     wall = time.perf_counter() - start
     kept = sum(len(batch["opening_mm"]) for batch in batches)
     print(f"  protocol: {wall:.1f} s for {planned} grasps ({kept} imprints kept)", flush=True)
@@ -158,12 +158,11 @@ def print_results(optical: list[dict[str, Any]], grasps: dict[str, Any], protoco
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
-    parser.add_argument("--repeats", type=int, default=10, help="steady-state calls per row")
     parser.add_argument("--batch", type=int, default=8, help="images per optical rendering batch")
     parser.add_argument("--grasp-batch", type=int, default=16, help="grasps per simulate_grasps call")
-    parser.add_argument("--quick", action="store_true", help="CI smoke: 3 repeats, batch 4, no protocol")
     parser.add_argument("--skip-protocol", action="store_true", help="skip the mapping protocol row")
+    add_common_arguments(parser, quick="3 repeats, batch 4, no protocol", seed_help="ball presses, grasps and keys",
+                         repeats=10, repeats_help="steady-state calls per row")
     args = parser.parse_args(argv)
     if args.repeats < 1 or args.batch < 1 or args.grasp_batch < 1:
         parser.error("--repeats, --batch and --grasp-batch must be positive")
@@ -174,16 +173,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = {**machine_info(), "tactojax_version": tactojax.__version__}
     print(f"{info['processor']}, {info['usable_cpus']} usable CPUs, jax {info['jax_version']} "
           f"({info['jax_backend']}), repeats {args.repeats}", flush=True)
-    optical = bench_optical(args.batch, args.repeats)
-    grasps = bench_grasps(args.grasp_batch, args.repeats)
-    protocol = None if args.skip_protocol else bench_protocol()
+    optical = bench_optical(args.batch, args.repeats, args.seed)
+    grasps = bench_grasps(args.grasp_batch, args.repeats, args.seed)
+    protocol = None if args.skip_protocol else bench_protocol(args.seed)
     print_results(optical, grasps, protocol)
 
     by_name = {r["name"]: r["throughput"] for r in optical}
     results = {
         "benchmark": "render", "machine": info,
         "settings": {"repeats": args.repeats, "batch": args.batch, "grasp_batch": args.grasp_batch,
-                     "quick": args.quick},
+                     "quick": args.quick, "seed": args.seed},
         "optical": optical, "grasps": grasps,
         "protocol": protocol if protocol is not None else {"note": "skipped"},
         "ratio_gel_surface_render_over_taxim_no_shadow": by_name["ours: gel_surface + render_image"]

@@ -28,12 +28,12 @@ re-localizations per frame; latency (median, and tracked frames alone) and the
 sustained rate. A figure shows the median error against the frame index.
 
     python benchmarks/tracking.py --json tracking.json --figure tracking.png
+    python benchmarks/tracking.py --quick     # smoke run: 2 sequences of 20 frames, a 20 mm map
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import jax
@@ -42,25 +42,24 @@ import jaxlie
 import numpy as np
 from tqdm.auto import tqdm
 
-from tactojax._compilation import CompilationCounter
+from tactojax import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
-from tactojax.io import (DEFAULT_ENCODER, open_dataset, read_grasps, read_test_grasps, resolve_encoder,
-                         resolve_shape_model)
+from tactojax.io import open_dataset, read_test_grasps, resolve_encoder, resolve_shape_model
 from tactojax.localize import (LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings,
                                load_test_episodes, localize)
-from tactojax.mapping import build_tactile_map, observed_contact
+from tactojax.mapping import observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
 from tactojax.shape import predict
-from tactojax.simulate import GraspsProtocol, MappingProtocol, SlipProtocol, simulate_to_dataset
+from tactojax.simulate import GraspsProtocol, SlipProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/tracking.py`` or as a module
-    from benchmarks._common import format_table, machine_info, write_json
-    from benchmarks.live import simulated
+    from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                                    print_machine, write_json)
 except ImportError:
-    from _common import format_table, machine_info, write_json
-    from live import simulated
+    from _common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                         print_machine, write_json)
 
 MODES = ("tracking", "tracking from the true start", "tracking from the fused belief", "re-localizing every frame")
 
@@ -199,48 +198,28 @@ def _cell(value: float | None) -> float | str:
     return "-" if value is None else value
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--object", default="scissors")
-    parser.add_argument("--work", default="benchmark-data/live", help="simulated data cache (shared with live.py)")
-    parser.add_argument("--model", default="bundled:fast-gelslim-0.5")
-    parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder (default: the CLI's)")
+    add_map_arguments(parser)
     parser.add_argument("--sequences", type=int, default=10)
     parser.add_argument("--frames", type=int, default=200)
-    parser.add_argument("--seed", type=int, default=2026, help="slip test set seed (not tuned on)")
     parser.add_argument("--belief-grasps", type=int, default=3,
                         help="grasps (both fingers) fused before each sequence for the belief's start (default 3)")
     parser.add_argument("--search-mm", type=float, default=TrackingSettings().search_mm,
                         help="TrackingSettings.search_mm: in-plane shift of the extra ICP starts (0: none)")
-    parser.add_argument("--json", metavar="PATH")
     parser.add_argument("--figure", metavar="PATH", help="median error against the frame index (.png)")
+    add_common_arguments(parser, quick="2 sequences of 20 frames, 1 belief grasp, a 20 mm map", seed=2026,
+                         seed_help="slip test set (not tuned on; the belief's grasps use seed + 1)")
     args = parser.parse_args()
+    if args.quick:
+        args.sequences, args.frames, args.belief_grasps = min(args.sequences, 2), min(args.frames, 20), 1
+    return args
 
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
-    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
-    print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}; {len(os.sched_getaffinity(0))} usable cores; "
-          f"encoder {args.encoder}")
-    grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
-    tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
-                                    args.object, T_world_object=grasps["T_world_object"])
-    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
-    protocol = SlipProtocol(sequences=args.sequences, frames=args.frames)
-    data = slip_sequences(work, args.object, protocol, args.seed)
-    group = get_object(args.object).symmetry.transforms()
-    symmetries = (np.asarray(group.rotation().as_matrix()), np.asarray(group.translation()))
-    symmetric = len(symmetries[1]) > 1
-    print(f"map: {len(tactile_map)} imprints; {args.sequences} slip sequences of {args.frames} frames")
 
-    starts, start_confidence = belief_starts(work, args.object, data, tactile_map, model, encoder, args.belief_grasps,
-                                             args.seed + 1)
-    print(f"belief starts: {len(starts)} of {args.sequences} sequences have an episode at their placement")
-    # A slip sequence's first frame is its grasp: it updates the belief at once (no settling).
-    tracker = Tracker([tactile_map], model, encoder, tracking=TrackingSettings(search_mm=args.search_mm),
-                      live=LiveSettings(settle_frames=1))
-    localizer = Localizer([tactile_map], model, encoder)
-    print(f"compiled: tracker {tracker.compile_s:.1f} s (its localizer included), localizer {localizer.compile_s:.1f} s")
-
+def run_modes(args, data, starts, tracker, localizer, symmetries) -> tuple[dict, list]:
+    """Every sequence through every mode (:data:`MODES`), recompilations counted: per mode the
+    lists of per-sequence errors, drift, latency, tracked and re-localized frames; and per
+    sequence its frames' true contact pixels."""
     results = {mode: {"position_mm": [], "drift_mm": [], "latency_s": [], "tracked": [], "relocalized": [],
                       "sequence_index": []} for mode in MODES}
     contact_px = []  # per sequence, (F,) true contact pixels
@@ -253,34 +232,46 @@ def main() -> None:
             grippers = data["T_world_gripper"][rows].astype(np.float32)
             contact_px.append(data["contact_px"][rows])
             for mode in MODES:
-                if mode == "re-localizing every frame":
-                    estimator = EveryFrame(localizer)
-                else:
-                    tracker.reset()
-                    if mode == "tracking from the true start":
-                        tracker.start(args.object, jaxlie.SE3(jnp.asarray(truth[0], jnp.float32)))
-                    if mode == "tracking from the fused belief":
-                        if int(sequence) not in starts:
-                            continue
-                        tracker.start(args.object, jaxlie.SE3(jnp.asarray(starts[int(sequence)], jnp.float32)))
-                    estimator = tracker
+                estimator = estimator_of(mode, args.object_id, int(sequence), truth[0], starts, tracker, localizer)
+                if estimator is None:
+                    continue
                 poses, latency, tracked, relocalized = run_sequence(estimator, images, openings, grippers)
                 position, drift = errors(poses, truth, symmetries)
                 for name, value in (("position_mm", position), ("drift_mm", drift), ("latency_s", latency),
                                     ("tracked", tracked), ("relocalized", relocalized), ("sequence_index", index)):
                     results[mode][name].append(value)
+    results["recompilations"] = counter.count
+    return results, contact_px
 
+
+def estimator_of(mode: str, object_id: str, sequence: int, true_start, starts: dict, tracker, localizer):
+    """The estimator a mode runs, reset and started as the mode says (None: no belief start)."""
+    if mode == "re-localizing every frame":
+        return EveryFrame(localizer)
+    tracker.reset()
+    if mode == "tracking from the true start":
+        tracker.start(object_id, jaxlie.SE3(jnp.asarray(true_start, jnp.float32)))
+    if mode == "tracking from the fused belief":
+        if sequence not in starts:
+            return None
+        tracker.start(object_id, jaxlie.SE3(jnp.asarray(starts[sequence], jnp.float32)))
+    return tracker
+
+
+def summarize(results: dict, contact_px: list) -> tuple[dict, np.ndarray]:
+    """Per mode that ran, the JSON summary (errors, drift, re-localizations, latency, rate); and
+    the (S, F) frames too small to localize."""
     all_small = np.stack(contact_px) < TrackingSettings().min_relocalize_px  # (S, F) touches too small to localize
-    summary, rows = {}, []
-    for mode, result in results.items():
+    summary = {}
+    for mode in MODES:
+        result = results[mode]
         if not result["position_mm"]:
             continue
         position = np.stack(result["position_mm"])  # (S', F): the sequences the mode ran
         small = all_small[result["sequence_index"]]
         latency, tracked = np.stack(result["latency_s"]), np.stack(result["tracked"])
         relocalized = np.stack(result["relocalized"])
-        tracked_ms = 1e3 * float(np.median(latency[tracked])) if tracked.any() else None
-        entry = {
+        summary[mode] = {
             "median_error_mm": float(np.nanmedian(position)),
             "median_error_larger_touches_mm": _nanmedian(position[~small]),
             "median_error_small_touches_mm": _nanmedian(position[small]),
@@ -289,53 +280,90 @@ def main() -> None:
             "end_drift_mm": float(np.nanmedian(result["drift_mm"])),
             "relocalized_fraction": float(relocalized[:, 1:].mean()),
             "median_latency_ms": 1e3 * float(np.median(latency)),
-            "tracked_latency_ms": tracked_ms,
+            "tracked_latency_ms": 1e3 * float(np.median(latency[tracked])) if tracked.any() else None,
             "rate_hz": float(latency.size / latency.sum()),
             "median_error_by_frame_mm": np.nanmedian(position, axis=0).tolist(),
             "sequences": len(position),
         }
-        summary[mode] = entry
-        rows.append([f"{mode} ({len(position)})" if len(position) < len(all_small) else mode, entry["median_error_mm"], _cell(entry["median_error_larger_touches_mm"]),
-                     _cell(entry["median_error_small_touches_mm"]), entry["first_frame_error_mm"], entry["last_frame_error_mm"],
-                     entry["end_drift_mm"], f"{100 * entry['relocalized_fraction']:.1f} %",
-                     entry["median_latency_ms"], tracked_ms if tracked_ms is not None else "-", entry["rate_hz"]])
-    print(f"{100 * all_small.mean():.0f} % of the frames touch fewer than {TrackingSettings().min_relocalize_px} contact "
+    return summary, all_small
+
+
+def print_results(args, summary: dict, all_small: np.ndarray, contact_px: list, recompilations: int,
+                  symmetries: int) -> None:
+    minimum = TrackingSettings().min_relocalize_px
+    rows = [[f"{mode} ({entry['sequences']})" if entry["sequences"] < len(all_small) else mode,
+             entry["median_error_mm"], _cell(entry["median_error_larger_touches_mm"]),
+             _cell(entry["median_error_small_touches_mm"]), entry["first_frame_error_mm"],
+             entry["last_frame_error_mm"], entry["end_drift_mm"], f"{100 * entry['relocalized_fraction']:.1f} %",
+             entry["median_latency_ms"], _cell(entry["tracked_latency_ms"]), entry["rate_hz"]]
+            for mode, entry in summary.items()]
+    print(f"{100 * all_small.mean():.0f} % of the frames touch fewer than {minimum} contact "
           f"pixels (median contact {int(np.median(np.stack(contact_px)))} px)")
-    print(format_table(["mode", "median error mm", f"touches >= {TrackingSettings().min_relocalize_px} px", "smaller", "frame 0 mm", "last frame mm", "end drift mm",
-                        "re-localized", "median ms", "tracked ms", "rate Hz"], rows))
-    print(f"recompilations during the run: {counter.count}")
+    print(format_table(["mode", "median error mm", f"touches >= {minimum} px", "smaller", "frame 0 mm",
+                        "last frame mm", "end drift mm", "re-localized", "median ms", "tracked ms", "rate Hz"], rows))
+    print(f"recompilations during the run: {recompilations}")
     print("errors are sensor positions in the object frame against the simulator's truth"
-          + (f", up to the {args.object}'s {len(symmetries[1])} symmetries" if symmetric else "")
+          + (f", up to the {args.object_id}'s {symmetries} symmetries" if symmetries > 1 else "")
           + "; the drift is the error of the estimated motion from frame 0 to the last")
+
+
+def save_figure(args, summary: dict, results: dict, protocol: SlipProtocol, symmetric: bool) -> None:
+    """The median error over sequences against the frame index, one line per mode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    for mode in summary:
+        axis.plot(np.nanmedian(np.stack(results[mode]["position_mm"]), axis=0), label=mode)
+    axis.set_xlabel("frame")
+    axis.set_ylabel("median position error over sequences (mm)")
+    axis.set_yscale("log")
+    axis.set_title(f"{args.object_id}: {args.sequences} slip sequences, up to {protocol.max_step_mm} mm and "
+                   f"{protocol.max_step_deg} deg per frame" + (" (errors up to symmetry)" if symmetric else ""),
+                   fontsize=10)
+    axis.legend()
+    figure.savefig(args.figure, dpi=120)
+    print(f"figure: {args.figure}")
+
+
+def main() -> None:
+    args = parse_args()
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    print_machine()
+    ((tactile_map, _),) = load_maps(args, model, encoder)
+    args.object_id = tactile_map.object_id
+    work = Path(args.work)
+    protocol = SlipProtocol(sequences=args.sequences, frames=args.frames)
+    data = slip_sequences(work, args.object_id, protocol, args.seed)
+    group = get_object(args.object_id).symmetry.transforms()
+    symmetries = (np.asarray(group.rotation().as_matrix()), np.asarray(group.translation()))
+    print(f"map: {len(tactile_map)} imprints; {args.sequences} slip sequences of {args.frames} frames")
+    starts, start_confidence = belief_starts(work, args.object_id, data, tactile_map, model, encoder,
+                                             args.belief_grasps, args.seed + 1)
+    print(f"belief starts: {len(starts)} of {args.sequences} sequences have an episode at their placement")
+    # A slip sequence's first frame is its grasp: it updates the belief at once (no settling).
+    tracker = Tracker([tactile_map], model, encoder, tracking=TrackingSettings(search_mm=args.search_mm),
+                      live=LiveSettings(settle_frames=1))
+    localizer = Localizer([tactile_map], model, encoder)
+    print(f"compiled: tracker {tracker.compile_s:.1f} s (its localizer included), localizer {localizer.compile_s:.1f} s")
+    results, contact_px = run_modes(args, data, starts, tracker, localizer, symmetries)
+    summary, all_small = summarize(results, contact_px)
+    print_results(args, summary, all_small, contact_px, results["recompilations"], len(symmetries[1]))
     if args.figure:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        figure, axis = plt.subplots(figsize=(7, 4), constrained_layout=True)
-        for mode in summary:
-            position = np.stack(results[mode]["position_mm"])
-            axis.plot(np.nanmedian(position, axis=0), label=mode)
-        axis.set_xlabel("frame")
-        axis.set_ylabel("median position error over sequences (mm)")
-        axis.set_yscale("log")
-        axis.set_title(f"{args.object}: {args.sequences} slip sequences, up to {protocol.max_step_mm} mm and "
-                       f"{protocol.max_step_deg} deg per frame" + (" (errors up to symmetry)" if symmetric else ""),
-                       fontsize=10)
-        axis.legend()
-        figure.savefig(args.figure, dpi=120)
-        print(f"figure: {args.figure}")
+        save_figure(args, summary, results, protocol, len(symmetries[1]) > 1)
     if args.json:
-        write_json(args.json, {"machine": machine_info(), "object": args.object, "encoder": args.encoder,
+        write_json(args.json, {"machine": machine_info(), "object": args.object_id, "encoder": args.encoder,
                                "search_mm": args.search_mm, "sequences": args.sequences, "frames": args.frames,
-                               "seed": args.seed, "recompilations": counter.count,
+                               "seed": args.seed, "recompilations": results["recompilations"],
                                "errors_up_to_symmetries": len(symmetries[1]),
                                "small_touch_fraction": float(all_small.mean()),
                                "belief_grasps": args.belief_grasps,
                                "belief_start_p_within_2mm": start_confidence,
                                "compile_s": {"tracker": tracker.compile_s, "localizer": localizer.compile_s},
                                "modes": summary})
+        print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ screenshot, and stops both processes it started. Run from the repository root, e
     python benchmarks/view_screenshot.py gum.npz --test data/gum-test --example-estimates est.json --out view.png
 
 ``--example-estimates PATH`` writes (then shows) stand-in estimates of the test touches: their true
-poses shifted by N(0, 2 mm) per axis (seed 0), probability 0.8, and on every odd touch a belief
+poses shifted by N(0, 2 mm) per axis (``--seed``, default 0), probability 0.8, and on every odd touch a belief
 of four hypotheses (0.6, 0.25, 0.1, 0.05) spread 0, 4, 8, 12 mm: the README's screenshot.
 """
 
@@ -31,18 +31,21 @@ import time
 import urllib.request
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import add_common_arguments, machine_info, write_json  # noqa: E402
+
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--enable-unsafe-swiftshader"]
 
 
-def write_example_estimates(test: str, path: str) -> None:
+def write_example_estimates(test: str, path: str, seed: int = 0) -> None:
     import numpy as np
 
     from tactojax.viz import read_test_touches
 
     touches = read_test_touches(test)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     entries = []
     for index, (object_id, pose) in enumerate(zip(touches["object_id"], touches["T_object_sensor"])):
         estimate = pose.copy()
@@ -94,14 +97,17 @@ def main() -> None:
     parser.add_argument("--out", default="view.png")
     parser.add_argument("--wait-s", type=float, default=25.0, help="time the viewer gets to load and draw")
     parser.add_argument("--size", default="1600,1000")
+    add_common_arguments(parser, quick="5 s for the viewer to draw", seed_help="stand-in estimates")
     args = parser.parse_args()
+    if args.quick:
+        args.wait_s = min(args.wait_s, 5.0)
     for tool in ("chromium", "chromedriver"):
         if shutil.which(tool) is None:
             sys.exit(f"{tool} not found: apt-get install -y chromium chromium-driver")
     if args.example_estimates:
         if not args.test:
             sys.exit("--example-estimates needs --test")
-        write_example_estimates(args.test, args.example_estimates)
+        write_example_estimates(args.test, args.example_estimates, args.seed)
         args.estimates = args.example_estimates
     web_port, grpc_port, driver_port = free_port(), free_port(), free_port()
     view = [sys.executable, "-c", "import sys; from tactojax.cli import main; sys.exit(main(sys.argv[1:]))",
@@ -129,6 +135,9 @@ def main() -> None:
                 webdriver(driver_port, "DELETE", f"/session/{session}")
         Path(args.out).write_bytes(png)
         print(f"screenshot: {args.out} ({len(png)} bytes)")
+        if args.json:
+            write_json(args.json, {"screenshot": args.out, "bytes": len(png), "wait_s": args.wait_s,
+                                   "size": args.size, "seed": args.seed, "machine": machine_info()})
     finally:
         for process in (driver, server):
             process.terminate()

@@ -13,8 +13,10 @@ checks the contract in ``pyproject.toml``; details in :mod:`tactojax.storage`):
 - ``hardware`` and ``viz``, then ``cli``.
 """
 
+from tactojax._compilation import CompilationCounter as CompilationCounter
+from tactojax._compilation import kernel_count as kernel_count
 from tactojax.sensor import Imprint as Imprint
 from tactojax.sensor import SensorSpec as SensorSpec
 
 __version__ = "0.1.0"
-__all__ = ["Imprint", "SensorSpec", "__version__"]
+__all__ = ["CompilationCounter", "Imprint", "SensorSpec", "__version__", "kernel_count"]

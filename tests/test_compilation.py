@@ -4,7 +4,7 @@
 import jax
 import jax.numpy as jnp
 
-from tactojax._compilation import CompilationCounter, kernel_count
+from tactojax import CompilationCounter, kernel_count
 
 
 def test_elementwise_work_fuses_into_one_kernel_and_library_calls_count_apart():

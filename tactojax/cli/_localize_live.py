@@ -77,7 +77,7 @@ def run(args) -> int:
     import numpy as np
     from tqdm.auto import tqdm
 
-    from tactojax._compilation import CompilationCounter
+    from tactojax import CompilationCounter
     from tactojax.cli._maps import stored_calibration
     from tactojax.cli._record import open_pose_source
     from tactojax.cli._table import format_table, write_json

@@ -62,16 +62,22 @@ class DepthwiseConv(nn.Module):
     Attributes:
         kernel_size: k.
         strides: stride along both image axes.
+        grouped: compute it as that grouped convolution instead (the graph a PyTorch export
+            gives; for exporting to ONNX, whose runtimes run it faster than shifted products).
     """
 
     kernel_size: int
     strides: int = 1
+    grouped: bool = False
 
     @nn.compact
     def __call__(self, x: Float[Array, "N H W C"]) -> Float[Array, "N h w C"]:
         k, stride = self.kernel_size, self.strides
         channels = x.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, channels), x.dtype)
+        if self.grouped:
+            return jax.lax.conv_general_dilated(x, kernel, (stride, stride), "SAME", feature_group_count=channels,
+                                                dimension_numbers=("NHWC", "HWIO", "NHWC"))
         padding = jax.lax.padtype_to_pads(x.shape[1:3], (k, k), (stride, stride), "SAME")  # nn.Conv's own rule
         padded = jnp.pad(x, ((0, 0), *padding, (0, 0)))
         rows, cols = ((length - k) // stride + 1 for length in padded.shape[1:3])
@@ -97,12 +103,14 @@ class MBConvBlock(nn.Module):
         kernel_size: depthwise kernel size (3 or 5).
         strides: depthwise stride (1 or 2).
         expand_ratio: hidden channels = input channels x expand_ratio (no expansion layer if 1).
+        grouped_depthwise: the depthwise convolution as a grouped one (:class:`DepthwiseConv`).
     """
 
     out_filters: int
     kernel_size: int = 3
     strides: int = 1
     expand_ratio: int = 6
+    grouped_depthwise: bool = False
 
     @nn.compact
     def __call__(self, x: Float[Array, "N H W C"], *, train: bool = False) -> Float[Array, "N h w D"]:
@@ -113,7 +121,7 @@ class MBConvBlock(nn.Module):
             y = nn.Conv(hidden, (1, 1), use_bias=False, name="expand_conv")(y)
             y = nn.relu6(_norm(train, "bn0")(y))
         k = self.kernel_size
-        y = DepthwiseConv(k, self.strides, name="depthwise_conv")(y)
+        y = DepthwiseConv(k, self.strides, self.grouped_depthwise, name="depthwise_conv")(y)
         y = nn.relu6(_norm(train, "bn1")(y))
         y = nn.Conv(self.out_filters, (1, 1), use_bias=False, name="project_conv")(y)
         y = _norm(train, "bn2")(y)
@@ -133,12 +141,15 @@ class EfficientNetLite(nn.Module):
         stem_filters: stem convolution filters (32, fixed across lite0-4).
         head_filters: head 1x1 convolution filters = feature size (1280, fixed across lite0-4).
         num_classes: if set, a final dense layer returns logits instead of pooled features.
+        grouped_depthwise: every depthwise convolution as a grouped one, the standard graph for
+            exporting to ONNX (the same parameters and result; see :class:`DepthwiseConv`).
     """
 
     stages: Sequence[BlockStage] = LITE0_STAGES
     stem_filters: int = 32
     head_filters: int = 1280
     num_classes: int | None = None
+    grouped_depthwise: bool = False
 
     @nn.compact
     def __call__(self, x: Float[Array, "N H W 3"], *, train: bool = False) -> Float[Array, "N C"]:
@@ -152,6 +163,7 @@ class EfficientNetLite(nn.Module):
                     stage.kernel_size,
                     stage.strides if repeat == 0 else 1,
                     stage.expand_ratio,
+                    self.grouped_depthwise,
                     name=f"blocks_{index}",
                 )
                 x = block(x, train=train)

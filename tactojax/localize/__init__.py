@@ -22,6 +22,15 @@ from tactojax.localize._active import propose_grasps as propose_grasps
 from tactojax.localize._active import should_stop as should_stop
 from tactojax.localize._baselines import PAPER_METHODS as PAPER_METHODS
 from tactojax.localize._baselines import localize_baseline as localize_baseline
+from tactojax.localize._baselines import estimate_pose as estimate_pose
+from tactojax.localize._evaluate import cloud_moments as cloud_moments
+from tactojax.localize._evaluate import moment_rmse as moment_rmse
+from tactojax.localize._evaluate import oracle_imprints as oracle_imprints
+from tactojax.localize._map import map_touch as map_touch
+from tactojax.localize._points import POINTS_PER_TOUCH as POINTS_PER_TOUCH
+from tactojax.localize._points import contact_points as contact_points
+from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM as MAX_OPENING_DIFFERENCE_MM
+from tactojax.localize._retrieval import closest_imprints as closest_imprints
 from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
 from tactojax.localize._belief import BeliefSettings as BeliefSettings
 from tactojax.localize._belief import PoseBelief as PoseBelief
@@ -109,4 +118,13 @@ __all__ = [
     "shared_calibration",
     "touch_from_image",
     "update_belief",
+    "estimate_pose",
+    "cloud_moments",
+    "moment_rmse",
+    "oracle_imprints",
+    "map_touch",
+    "POINTS_PER_TOUCH",
+    "contact_points",
+    "MAX_OPENING_DIFFERENCE_MM",
+    "closest_imprints",
 ]

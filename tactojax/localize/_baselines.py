@@ -81,22 +81,24 @@ def estimate_pose(
     points_valid: Bool[Array, "P"],
     indices: Int[Array, "N"],
     indices_valid: Bool[Array, "N"],
-    method: Method,
+    method: str | Method,
     *,
     settings: IcpSettings = IcpSettings(),
 ) -> PoseEstimate:
-    """CTI or CTI-ICP-N from the retrieved imprints (most similar first).
+    """CTI or CTI-ICP-N from the retrieved imprints (most similar first): the registration step
+    of :func:`localize_baseline`, after retrieval (:func:`closest_imprints`).
 
     Args:
         view: the map.
         points: (P, 3) the touch's contact points, sensor frame, mm; points_valid (P,).
         indices: (N,) retrieved imprints, most similar first; indices_valid (N,).
-        method: ``cti`` or ``cti-icp-N`` (N = ``len(indices)``).
+        method: ``"cti"`` or ``"cti-icp-N"`` (N = ``len(indices)``).
         settings: ICP parameters.
 
     Returns:
         the estimate; with no valid retrieved imprint, the identity pose, not converged.
     """
+    method = parse_method(method)
     any_valid = indices_valid[0]
     first = indices[0]
     T_first = _take(view.T_object_sensor, first)

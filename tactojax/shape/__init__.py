@@ -21,6 +21,9 @@ from tactojax.shape._metrics import summarize_errors as summarize_errors
 from tactojax.shape._models import PRESETS as PRESETS
 from tactojax.shape._models import build_network as build_network
 from tactojax.shape._models import flops_per_pixel as flops_per_pixel
+from tactojax.shape._models import MASK_SHARPNESS_MM as MASK_SHARPNESS_MM
+from tactojax.shape._models import patch_planes as patch_planes
+from tactojax.shape._models import pixel_patches as pixel_patches
 from tactojax.shape._poisson import integrate_gradient as integrate_gradient
 from tactojax.shape._poisson import zero_background as zero_background
 from tactojax.shape._predict import LOOKUP as LOOKUP
@@ -29,6 +32,7 @@ from tactojax.shape._predict import ShapeModel as ShapeModel
 from tactojax.shape._predict import check_image as check_image
 from tactojax.shape._predict import coordinate_bias as coordinate_bias
 from tactojax.shape._predict import init_shape_model as init_shape_model
+from tactojax.shape._predict import network_input as network_input
 from tactojax.shape._predict import predict as predict
 from tactojax.shape._predict import predict_batch as predict_batch
 from tactojax.shape._train import TrainConfig as TrainConfig
@@ -74,4 +78,8 @@ __all__ = [
     "summarize_errors",
     "train_shape_model",
     "zero_background",
+    "MASK_SHARPNESS_MM",
+    "patch_planes",
+    "pixel_patches",
+    "network_input",
 ]

@@ -1,4 +1,4 @@
-"""EfficientNet-Lite's depthwise convolution against flax's grouped convolution."""
+"""EfficientNet-Lite's depthwise convolution against flax's grouped convolution, and the network built with it."""
 
 import flax.linen as nn
 import jax
@@ -21,3 +21,14 @@ def test_depthwise_conv_matches_a_grouped_convolution(kernel_size, strides, shap
     ours = DepthwiseConv(kernel_size, strides)
     assert jax.tree.map(np.shape, ours.init(jax.random.key(1), x)) == jax.tree.map(np.shape, variables)
     np.testing.assert_allclose(ours.apply(variables, x), expected, rtol=1e-5, atol=1e-5)
+
+
+def test_grouped_depthwise_network_has_the_same_parameters_and_output():
+    """``grouped_depthwise=True`` (the ONNX-export graph) against the shifted products."""
+    from tactojax.features import EfficientNetLiteTiny
+
+    x = np.random.default_rng(0).normal(size=(2, 24, 32, 3)).astype(np.float32)
+    shifted, grouped = EfficientNetLiteTiny(), EfficientNetLiteTiny(grouped_depthwise=True)
+    variables = shifted.init(jax.random.key(0), x)
+    assert jax.tree.map(np.shape, grouped.init(jax.random.key(0), x)) == jax.tree.map(np.shape, variables)
+    np.testing.assert_allclose(grouped.apply(variables, x), shifted.apply(variables, x), rtol=1e-4, atol=1e-5)

@@ -8,7 +8,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax._compilation import CompilationCounter
+from tactojax import CompilationCounter
 from tactojax.features import encode_image
 from tactojax.geometry import sensor_pose
 from tactojax.localize import Touch, localize
