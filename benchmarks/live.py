@@ -46,7 +46,7 @@ from tactojax.features import encode_image
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import BeliefSettings, LocalizationMap, Localizer, Touch, localize
+from tactojax.localize import BeliefSettings, LiveSettings, LocalizationMap, Localizer, Touch, localize
 from tactojax.mapping import observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
@@ -122,6 +122,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--gap", type=int, default=2, help="frames without contact between grasps (default 2)")
     parser.add_argument("--fps", type=float, default=30.0, help="the video's nominal frame rate")
     parser.add_argument("--no-reference", action="store_true", help="leave out the stage-by-stage reference")
+    parser.add_argument("--synchronous-update", action="store_true",
+                        help="update the belief inside the frame call that settles a grasp (default: in the "
+                             "background, LiveSettings.background_update, as tactojax localize-live does)")
     add_common_arguments(parser, quick="2 episodes of 2 grasps, a 20 mm map", seed_help="simulated test set")
     args = parser.parse_args()
     if args.quick:
@@ -160,8 +163,8 @@ def ground_truth(records: dict, name: str, mm_per_px: float):
 def write_videos(args, work: Path, name: str, records: dict, opposite: dict, background: np.ndarray, settle: int,
                  label: str):
     """The frames as lossless videos: each grasp at rest (settle + hold), then released (gap).
-    Returns (video, opposite video or None, per frame: opening, gripper pose, touch index)."""
-    frames, opposite_frames, openings, poses, touch_of_frame = [], [], [], [], []
+    Returns (video, opposite video or None, per frame: opening and gripper pose)."""
+    frames, opposite_frames, openings, poses = [], [], [], []
     for t in range(len(records["image"])):
         for k in range(settle + args.hold + args.gap):
             released = k >= settle + args.hold
@@ -170,40 +173,57 @@ def write_videos(args, work: Path, name: str, records: dict, opposite: dict, bac
                 opposite_frames.append(background if released else opposite["image"][t])
             openings.append(float(records["opening_mm"][t]) + (RELEASED_MM if released else 0.0))
             poses.append(records["T_world_gripper"][t].astype(np.float32))
-            touch_of_frame.append(t)
     work.mkdir(parents=True, exist_ok=True)
     video = write_video(work / f"{name}-{label}.mkv", np.stack(frames), fps=args.fps)
     opposite_video = None if args.fingers == 1 else write_video(
         work / f"{name}-{label}-opposite.mkv", np.stack(opposite_frames), fps=args.fps)
-    return video, opposite_video, openings, poses, touch_of_frame
+    return video, opposite_video, openings, poses
 
 
-def play_live(localizer, video, opposite_video, openings, poses, touch_of_frame, frames_per_episode, truth_of,
-              shape) -> tuple[dict, list, np.ndarray, np.ndarray]:
-    """The videos through ``live_estimates``: (summary, belief-update latencies ms, (E, G) errors
-    and P(within 2 mm) after every grasp); ``truth_of(t, T_estimate)`` is a touch's error."""
-    statistics, updated_ms = LiveStatistics(), []
-    errors, probability = np.full(shape, np.nan), np.full(shape, np.nan)
-    grasps = shape[1]
+def play_live(localizer, video, opposite_video, openings, poses, frames_per_episode, shape
+              ) -> tuple[dict, list, dict]:
+    """The videos through ``live_estimates``: (summary, latencies ms of the frames where an
+    update landed, every grasp's belief {(episode, grasp): PoseBelief} as the update left it)."""
+    statistics, updated_ms, beliefs = LiveStatistics(), [], {}
     next_opening = iter(openings).__next__  # frames come in order: one opening each
     second_camera = None if opposite_video is None else OpenCVCamera(opposite_video, gelslim(scale=0.5))
+
+    def keep(episode):  # the belief of the grasp an update just landed
+        if localizer.grasps:
+            beliefs[episode, localizer.grasps - 1] = localizer.beliefs[0]
+
     with OpenCVCamera(video, gelslim(scale=0.5)) as camera, CompilationCounter() as compiles:
         for frame, estimate in live_estimates(camera, localizer, next_opening, second_camera=second_camera,
                                               gripper_pose=lambda frame: jaxlie.SE3(poses[frame.index])):
             statistics.add(frame, estimate)
-            t = touch_of_frame[frame.index]
+            episode = frame.index // frames_per_episode
             if estimate.updated:
                 updated_ms.append(1e3 * estimate.latency_s)
-                errors[t // grasps, t % grasps] = truth_of(t, np.asarray(estimate.T_object_sensor.wxyz_xyz))
-                probability[t // grasps, t % grasps] = estimate.probability_within
+                keep(episode)
             if (frame.index + 1) % frames_per_episode == 0:
-                localizer.reset()  # the object is put down elsewhere
+                localizer.wait()  # an update still running lands before the object is put down elsewhere
+                keep(episode)
+                localizer.reset()
+    localizer.close()
     if second_camera is not None:
         second_camera.close()
     statistics.recompilations = compiles.count
     for message in compiles.messages:
         print("recompiled:", message[:300])
-    return statistics.summary(), updated_ms, errors, probability
+    return statistics.summary(), updated_ms, beliefs
+
+
+def grasp_errors(beliefs: dict, records: dict, shape, truth_of) -> tuple[np.ndarray, np.ndarray]:
+    """(E, G) errors of every grasp's sensor pose under the belief its update left, and its
+    P(within 2 mm) (NaN where a grasp gave no estimate)."""
+    errors, probability = np.full(shape, np.nan), np.full(shape, np.nan)
+    for (e, g), belief in beliefs.items():
+        t = e * shape[1] + g
+        opening = jnp.float32(records["opening_mm"][t])
+        T_world_sensor = sensor_pose(jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32)), opening)
+        errors[e, g] = truth_of(t, np.asarray(belief.sensor_pose(T_world_sensor).wxyz_xyz))
+        probability[e, g] = float(belief.probability_within())
+    return errors, probability
 
 
 def stage_by_stage(args, view, model, encoder, settings, records, opposite, shape, truth_of) -> dict:
@@ -249,13 +269,13 @@ def stage_by_stage(args, view, model, encoder, settings, records, opposite, shap
 
 
 def print_results(result: dict) -> None:
-    live, reference, updated = result["live"], result["reference"], result["belief_update_ms"]
+    live, reference, updated = result["live"], result["reference"], result["update_frame_ms"]
     episodes, grasps, fingers = result["episodes"], result["grasps_per_episode"], result["fingers"]
     loop = (f"live: {episodes} episodes x {grasps} grasps x {fingers} finger{'s' * (fingers > 1)}, each "
             f"{result['settle_frames']}+{result['hold_frames']} frames at rest + {result['gap_frames']} released")
     latency = live["latency_ms"]
     print(format_table(
-        ["loop", "frames", "rate (Hz)", "latency median / p95 / max (ms)", "belief updates: median / max (ms)",
+        ["loop", "frames", "rate (Hz)", "latency median / p95 / max (ms)", "frames where an update landed: median / max (ms)",
          "recompilations"],
         [[loop, live["frames"], f"{live['rate_hz']:.1f}",
           f"{latency['median']:.1f} / {latency['p95']:.1f} / {latency['max']:.1f}",
@@ -290,14 +310,15 @@ def main() -> None:
 
     print(f"compiling the live programs ({name}: {len(tactile_map)} imprints) ...", flush=True)
     settings = BeliefSettings()
-    localizer = Localizer([tactile_map], model, encoder, calibrations=[calibration], settings=settings)
+    localizer = Localizer([tactile_map], model, encoder, calibrations=[calibration], settings=settings,
+                          live=LiveSettings(background_update=not args.synchronous_update))
     settle = localizer.live.settle_frames
     background = np.round(np.asarray(model.background) * 255).astype(np.uint8)
-    video, opposite_video, openings, poses, touch_of_frame = write_videos(
+    video, opposite_video, openings, poses = write_videos(
         args, Path(args.work), name, records, opposite, background, settle, f"grasps-e{episodes}-g{grasps}")
-    live, updated_ms, errors, probability = play_live(
-        localizer, video, opposite_video, openings, poses, touch_of_frame, grasps * (settle + args.hold + args.gap),
-        truth_of, (episodes, grasps))
+    live, updated_ms, beliefs = play_live(localizer, video, opposite_video, openings, poses,
+                                          grasps * (settle + args.hold + args.gap), (episodes, grasps))
+    errors, probability = grasp_errors(beliefs, records, (episodes, grasps), truth_of)
     reference = None
     if not args.no_reference:
         view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
@@ -307,8 +328,9 @@ def main() -> None:
         "object": name, "map_imprints": len(tactile_map), "test": str(test), "episodes": episodes,
         "grasps_per_episode": grasps, "fingers": args.fingers, "settle_frames": settle, "hold_frames": args.hold,
         "gap_frames": args.gap, "video": str(video), "calibrated": calibration is not None,
+        "background_update": not args.synchronous_update,
         "compile_s": localizer.compile_s, "live": live,
-        "belief_update_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,
+        "update_frame_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,
                              "max": float(np.max(updated_ms)) if updated_ms else None},
         "per_grasp": per_grasp(errors, probability), "reference": reference, "symmetries": len(symmetries[1]),
         "seed": args.seed, "machine": machine_info()}

@@ -84,7 +84,7 @@ def run(args) -> int:
     from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
     from tactojax.hardware._live import PoseLookup
     from tactojax.io import resolve_shape_model
-    from tactojax.localize import Localizer, Tracker
+    from tactojax.localize import LiveSettings, Localizer, Tracker
 
     if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
         raise ValueError(f"--opening must be a positive number of mm, got {args.opening}")
@@ -94,7 +94,9 @@ def run(args) -> int:
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     calibrations = [stored_calibration(path, args.encoder) for path in args.maps]
     print("compiling the touch program ...", flush=True)
-    localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations)
+    # Settled grasps update the belief in a worker thread: no camera frame waits for it.
+    localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
+                                                             live=LiveSettings(background_update=True))
     print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
           f"{'' if args.no_tracking else ' (tracking between frames)'}")
     source = camera_source(args.camera)
@@ -127,6 +129,7 @@ def run(args) -> int:
         statistics.recompilations = compiles.count
         statistics.stale_poses = lookup.stale if lookup is not None else 0
     finally:
+        localizer.close()
         if gripper is not None:
             gripper.close()
         if second_camera is not None:

@@ -11,6 +11,13 @@ object that stays put between them are fused by their sensor poses (the kinemati
 :meth:`Localizer.reset` forgets them (the object was moved, or another one is grasped). Between updates every frame reports the belief as it stands, the sensor pose moved
 with the gripper.
 
+An update takes tens of milliseconds on a CPU, several camera frames. With
+``LiveSettings(background_update=True)`` (what ``tactojax localize-live`` and the live
+benchmark use) it runs in a worker thread: the frame that settles a grasp returns at once, the
+frames meanwhile report the belief as it stood (``LiveEstimate.pending``), and the first frame
+after the update has finished reports it (``updated``). The camera loop then never waits for
+the belief.
+
 Several maps: each keeps its own belief, all under one calibration, so their evidences compare:
 P(object) is their softmax (:func:`~tactojax.localize.identify_episodes` does the same offline).
 
@@ -23,6 +30,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -75,6 +83,9 @@ class LiveSettings:
     """...and its opening changes less than this, mm."""
     modes: int = 3
     """Modes of the belief a :class:`LiveEstimate` reports."""
+    background_update: bool = False
+    """Run a settled grasp's belief update in a worker thread, so that no frame waits for it
+    (see the module docstring); :meth:`Localizer.fuse` still updates at once."""
 
     def __post_init__(self):
         if self.settle_frames < 1:
@@ -109,13 +120,17 @@ class LiveEstimate:
     grasps: int
     """Settled grasps fused into the belief since the last :meth:`Localizer.reset`."""
     updated: bool
-    """Whether this frame's grasp updated the belief."""
+    """Whether the belief changed at this frame: a grasp's update landed (at the frame that
+    settled it, or, with ``LiveSettings.background_update``, at the first frame after it ran)."""
     latency_s: float
     """Wall time of the call, from image in to estimate out, s."""
     tracked: bool = False
     """Whether a :class:`~tactojax.localize.Tracker` followed the pose from the previous frame."""
     residual_mm: float = 0.0
     """The tracked fit's robust RMS residual, mm (0 unless ``tracked``)."""
+    pending: bool = False
+    """Whether a settled grasp's update is still running in the background
+    (``LiveSettings.background_update``): the estimate is the belief from before that grasp."""
 
     def as_dict(self) -> dict:
         """JSON-ready fields (poses as wxyz + xyz, mm; null without an estimate)."""
@@ -127,7 +142,8 @@ class LiveEstimate:
                 "probability_within_2mm": self.probability_within,
                 "modes": [{"T_world_object_wxyz_xyz": pose(T), "probability": p} for T, p in self.modes],
                 "contact": self.contact, "grasps": self.grasps, "updated": self.updated,
-                "latency_s": self.latency_s, "tracked": self.tracked, "residual_mm": self.residual_mm}
+                "latency_s": self.latency_s, "tracked": self.tracked, "residual_mm": self.residual_mm,
+                "pending": self.pending}
 
 
 def observe(model: ShapeModel, image: jax.Array,
@@ -235,7 +251,9 @@ class Localizer:
     """Identify and localize a grasped object from camera frames, at camera rate (see the module docstring).
 
     Built once at start-up (this compiles, typically 10-60 s on a CPU); each frame then runs
-    precompiled programs only. Not thread-safe: give each thread its own.
+    precompiled programs only. Not thread-safe: give each thread its own (with
+    ``background_update`` it runs its updates in one worker thread of its own; :meth:`close`
+    stops it).
 
     Args:
         maps: the object maps (features filled by ``encoder``; all of one sensor).
@@ -286,10 +304,17 @@ class Localizer:
                                                            pose.wxyz_xyz).compile()
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
+        self._worker: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
         self.reset()
 
     def reset(self) -> None:
-        """Forget every touch: the object was released, moved or replaced."""
+        """Forget every touch: the object was released, moved or replaced (an update still
+        running in the background is waited for and dropped)."""
+        if self._pending is not None:
+            self._pending.result()
+            self._pending = None
+        self._fresh = False  # an update landed that no estimate has reported yet
         self.beliefs = list(self._empty)
         """Every map's :class:`~tactojax.localize.PoseBelief` (inspect, plot, or save it)."""
         self.grasps = 0
@@ -336,24 +361,42 @@ class Localizer:
     def advance(self, frame: Frame, start: float) -> LiveEstimate:
         """A call's work on an observed frame (:meth:`observe_frame`): the grasp's settling, and
         its update once it has settled. ``start``: when the frame arrived (``time.perf_counter``)."""
-        updated = False
+        self._collect(wait=False)
         if not frame.contact:
             self._previous, self._at_rest, self._grasp_used = None, 0, False
         else:
             self._at_rest = self._at_rest + 1 if self._still(frame.gripper, frame.opening_mm) else 1
             self._previous = (frame.gripper, frame.opening_mm)
             if self._at_rest >= self.live.settle_frames and not self._grasp_used:
-                self._fuse_grasp(frame)
-                self._grasp_used = updated = True
-        return self._estimate(frame.contact, updated, frame.gripper, frame.opening_mm, time.perf_counter() - start)
+                self._fuse_grasp(frame, background=self.live.background_update)
+                self._grasp_used = True
+        return self._estimate(frame.contact, frame.gripper, frame.opening_mm, time.perf_counter() - start)
 
     def fuse_frame(self, frame: Frame, start: float) -> LiveEstimate:
         """:meth:`fuse` on an observed frame (:meth:`observe_frame`)."""
+        self._collect(wait=True)
         if frame.contact:
-            self._fuse_grasp(frame)
+            self._fuse_grasp(frame, background=False)
             self._previous, self._grasp_used = (frame.gripper, frame.opening_mm), True
-        return self._estimate(frame.contact, frame.contact, frame.gripper, frame.opening_mm,
-                              time.perf_counter() - start)
+        return self._estimate(frame.contact, frame.gripper, frame.opening_mm, time.perf_counter() - start)
+
+    def wait(self) -> None:
+        """Block until an update running in the background has finished (the next estimate
+        reports it)."""
+        self._collect(wait=True)
+
+    def close(self) -> None:
+        """Finish a background update and stop the worker thread (a later update starts it again)."""
+        self.wait()
+        if self._worker is not None:
+            self._worker.shutdown()
+            self._worker = None
+
+    def _collect(self, *, wait: bool) -> None:
+        """Take a background update's result once it has finished (or wait for it)."""
+        if self._pending is not None and (wait or self._pending.done()):
+            result, self._pending = self._pending.result(), None
+            self._land(*result)
 
     def _still(self, gripper: np.ndarray | None, opening_mm: float) -> bool:
         """Whether the gripper is at rest since the previous contact frame."""
@@ -377,13 +420,25 @@ class Localizer:
             identity if T_world_object is None else T_world_object,
             identity if T_object_sensor is None else T_object_sensor))
 
-    def _fuse_grasp(self, frame: Frame) -> None:
-        """Update every map's belief with this grasp's touches (sensor finger, then the other)."""
-        image, second_image, opening_mm, gripper = frame.image, frame.second_image, frame.opening_mm, frame.gripper
-        if gripper is None or not self._poses_known:  # grasps that cannot be related: start over
+    def _fuse_grasp(self, frame: Frame, *, background: bool) -> None:
+        """Update every map's belief with this grasp's touches, now or in the worker thread."""
+        self._collect(wait=True)  # grasps update in order, each from the belief the last one left
+        if frame.gripper is None or not self._poses_known:  # grasps that cannot be related: start over
             if self.grasps:
                 self.reset()
-            self._poses_known = gripper is not None
+            self._poses_known = frame.gripper is not None
+        if not background:
+            self._land(*self._updated(self.beliefs, frame))
+            return
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tactojax-belief")
+        self._pending = self._worker.submit(self._updated, self.beliefs, frame)
+
+    def _updated(self, beliefs: Sequence[PoseBelief], frame: Frame):
+        """Every map's belief after this grasp's touches (sensor finger, then the other), and
+        what an estimate reports of them (None: no map explains the touches). Touches nothing
+        of ``self`` but its compiled programs (it may run in the worker thread)."""
+        image, second_image, opening_mm, gripper = frame.image, frame.second_image, frame.opening_mm, frame.gripper
         opening = np.float32(opening_mm)
         T_world_sensor, T_world_opposite, _, _ = self._poses(gripper, opening)
         touches = [(Touch(heightmap=frame.heightmap, mask=frame.mask, feature=self._encode(self._encoder, image),
@@ -395,26 +450,34 @@ class Localizer:
                 touches.append((Touch(heightmap=second_heightmap, mask=second_mask,
                                       feature=self._encode(self._encoder, second_image), opening=opening),
                                 T_world_opposite))
+        beliefs = list(beliefs)
         for m, (view, update) in enumerate(zip(self.views, self._update)):
             for touch, T_world_touch in touches:
-                self.beliefs[m] = update(view, self.beliefs[m], touch, jaxlie.SE3(T_world_touch))
-        self.grasps += 1
-        summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, self.beliefs)])
+                beliefs[m] = update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch))
+        summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, beliefs)])
         probabilities = object_probabilities([s[4] for s in summaries])
         if not probabilities.any():  # no map explains the touches
-            self._summary = None
-            return
+            return beliefs, None
         chosen = int(np.argmax(probabilities))
         T_world_object, within, T_modes, mode_probability, _ = summaries[chosen]
         modes = tuple((jaxlie.SE3(np.asarray(T)), float(p)) for T, p in zip(T_modes, mode_probability) if p > 0)
-        self._summary = (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
+        return beliefs, (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
                          np.asarray(T_world_object, np.float32), float(within), modes)
 
-    def _estimate(self, contact: bool, updated: bool, gripper, opening_mm: float, latency_s: float) -> LiveEstimate:
+    def _land(self, beliefs: list[PoseBelief], summary) -> None:
+        """An update's result becomes the localizer's belief."""
+        self.beliefs, self._summary = beliefs, summary
+        self.grasps += 1
+        self._fresh = True
+
+    def _estimate(self, contact: bool, gripper, opening_mm: float, latency_s: float) -> LiveEstimate:
+        updated, self._fresh = self._fresh, False
+        pending = self._pending is not None
         if self._summary is None:
             return LiveEstimate(object_id=None, object_probabilities={name: 0.0 for name in self.object_ids},
                                 T_object_sensor=None, T_world_object=None, probability_within=0.0, modes=(),
-                                contact=contact, grasps=self.grasps, updated=updated, latency_s=latency_s)
+                                contact=contact, grasps=self.grasps, updated=updated, latency_s=latency_s,
+                                pending=pending)
         chosen, probabilities, T_world_object, within, modes = self._summary
         T_object_sensor = None
         if gripper is not None or not self._poses_known:
@@ -423,7 +486,7 @@ class Localizer:
         return LiveEstimate(object_id=self.object_ids[chosen], object_probabilities=probabilities,
                             T_object_sensor=T_object_sensor, T_world_object=jaxlie.SE3(T_world_object),
                             probability_within=within, modes=modes, contact=contact, grasps=self.grasps,
-                            updated=updated, latency_s=latency_s)
+                            updated=updated, latency_s=latency_s, pending=pending)
 
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], np.float32)

@@ -251,6 +251,14 @@ class Tracker:
         self._unsupported = 0
         self._belief_numbers = ({name: float(name == object_id) for name in self.object_ids}, 1.0)
 
+    def wait(self) -> None:
+        """:meth:`Localizer.wait`."""
+        self.localizer.wait()
+
+    def close(self) -> None:
+        """:meth:`Localizer.close`."""
+        self.localizer.close()
+
     @property
     def following(self) -> bool:
         """Whether the next frame will be tracked from the last pose (a track is held)."""

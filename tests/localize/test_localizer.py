@@ -3,6 +3,8 @@ stage by stage; grasps fuse by the kinematics; nothing recompiles; bad frames ar
 The Tracker: it starts from the belief of a settled grasp, then follows; contact lost ends the
 track and the belief. (One module: both share the programs of one session fixture.)"""
 
+import dataclasses
+
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
@@ -121,6 +123,42 @@ def test_a_settled_grasp_updates_the_belief_once_as_localize_does(live, lookup_m
     # ...and it found the touch (the imprint is in the map).
     assert _symmetric_error(view, maps[1], index, estimate.T_object_sensor, T_true) < 1.0
     assert estimate.as_dict()["grasps"] == 1 and estimate.as_dict()["T_world_object_wxyz_xyz"] is not None
+
+
+def test_a_background_update_lands_later_with_the_same_belief(live, grasp_frames):
+    """With ``background_update`` the settling frame returns before the update (pending); once
+    it has run, the next frame reports it (updated) with exactly the belief the synchronous
+    update gives; a second grasp waits for the first; nothing recompiles."""
+    localizer, maps, _ = live
+    settle = localizer.live.settle_frames
+    first, second = (grasp_frames(maps[1], int(i), T_WORLD_OBJECT) for i in _grasp_indices(maps[1], 2))
+
+    def two_grasps():
+        localizer.reset()
+        estimates = []
+        for image, opening, T_world_gripper, _ in (first, second):
+            estimates += [localizer(image, opening, T_world_gripper) for _ in range(settle)]
+            estimates.append(localizer(np.zeros_like(image), opening, T_world_gripper))  # a frame of no touch
+        localizer.wait()
+        estimates.append(localizer(*first[:3]))
+        return estimates
+
+    synchronous = two_grasps()
+    localizer.live = dataclasses.replace(localizer.live, background_update=True)
+    try:
+        with CompilationCounter() as compiles:
+            background = two_grasps()
+    finally:
+        localizer.close()
+        localizer.live = dataclasses.replace(localizer.live, background_update=False)
+    assert compiles.messages == []
+    settling = background[settle - 1]
+    assert settling.pending and not settling.updated and settling.grasps == 0
+    assert not any(e.pending for e in synchronous)
+    assert background[-1].updated and not background[-1].pending and background[-1].grasps == 2
+    assert sum(e.updated for e in background) == 2 and sum(e.updated for e in synchronous) == 2
+    np.testing.assert_array_equal(background[-1].T_world_object.wxyz_xyz, synchronous[-1].T_world_object.wxyz_xyz)
+    assert background[-1].probability_within == synchronous[-1].probability_within
 
 
 def test_grasps_without_gripper_poses_start_over(live, grasp_frames):
