@@ -121,6 +121,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--hold", type=int, default=2, help="frames at rest after a grasp settled (default 2)")
     parser.add_argument("--gap", type=int, default=2, help="frames without contact between grasps (default 2)")
     parser.add_argument("--fps", type=float, default=30.0, help="the video's nominal frame rate")
+    parser.add_argument("--realtime", action="store_true",
+                        help="deliver the frames at --fps, as a live camera does, and report how many came out "
+                             "more than a frame period late (default: as fast as the loop takes them)")
     parser.add_argument("--no-reference", action="store_true", help="leave out the stage-by-stage reference")
     parser.add_argument("--synchronous-update", action="store_true",
                         help="update the belief inside the frame call that settles a grasp (default: in the "
@@ -180,11 +183,32 @@ def write_videos(args, work: Path, name: str, records: dict, opposite: dict, bac
     return video, opposite_video, openings, poses
 
 
-def play_live(localizer, video, opposite_video, openings, poses, frames_per_episode, shape
+class PacedCamera:
+    """A camera that delivers a video's frames at ``fps``, as a live camera does (``--realtime``):
+    each frame is due ``index / fps`` after the first; :meth:`delay_s` is how long after its due
+    time a frame's estimate came out (more than one frame period: the loop fell behind)."""
+
+    def __init__(self, camera, fps: float):
+        self.camera, self.period_s, self.due_s, self._start = camera, 1.0 / fps, 0.0, None
+
+    def read(self):
+        frame = self.camera.read()
+        now = time.perf_counter()
+        self._start = now if self._start is None else self._start
+        self.due_s = self._start + frame.index * self.period_s
+        time.sleep(max(0.0, self.due_s - now))
+        return frame
+
+    def delay_s(self) -> float:
+        return time.perf_counter() - self.due_s
+
+
+def play_live(args, localizer, video, opposite_video, openings, poses, frames_per_episode, shape
               ) -> tuple[dict, list, dict]:
     """The videos through ``live_estimates``: (summary, latencies ms of the frames where an
-    update landed, every grasp's belief {(episode, grasp): PoseBelief} as the update left it)."""
-    statistics, updated_ms, beliefs = LiveStatistics(), [], {}
+    update landed, every grasp's belief {(episode, grasp): PoseBelief} as the update left it).
+    With ``--realtime`` the frames come at ``--fps`` and the summary adds how late they were."""
+    statistics, updated_ms, beliefs, delays = LiveStatistics(), [], {}, []
     next_opening = iter(openings).__next__  # frames come in order: one opening each
     second_camera = None if opposite_video is None else OpenCVCamera(opposite_video, gelslim(scale=0.5))
 
@@ -192,10 +216,13 @@ def play_live(localizer, video, opposite_video, openings, poses, frames_per_epis
         if localizer.grasps:
             beliefs[episode, localizer.grasps - 1] = localizer.beliefs[0]
 
-    with OpenCVCamera(video, gelslim(scale=0.5)) as camera, CompilationCounter() as compiles:
+    with OpenCVCamera(video, gelslim(scale=0.5)) as video_camera, CompilationCounter() as compiles:
+        camera = PacedCamera(video_camera, args.fps) if args.realtime else video_camera
         for frame, estimate in live_estimates(camera, localizer, next_opening, second_camera=second_camera,
                                               gripper_pose=lambda frame: jaxlie.SE3(poses[frame.index])):
             statistics.add(frame, estimate)
+            if args.realtime:
+                delays.append(camera.delay_s())
             episode = frame.index // frames_per_episode
             if estimate.updated:
                 updated_ms.append(1e3 * estimate.latency_s)
@@ -210,7 +237,13 @@ def play_live(localizer, video, opposite_video, openings, poses, frames_per_epis
     statistics.recompilations = compiles.count
     for message in compiles.messages:
         print("recompiled:", message[:300])
-    return statistics.summary(), updated_ms, beliefs
+    summary = statistics.summary()
+    if args.realtime:
+        delay_ms, period_ms = 1e3 * np.asarray(delays), 1e3 / args.fps
+        summary["paced"] = {"fps": args.fps, "late_frames": int(np.sum(delay_ms > period_ms)),
+                            "delay_ms": {"median": float(np.median(delay_ms)),
+                                         "p95": float(np.percentile(delay_ms, 95)), "max": float(delay_ms.max())}}
+    return summary, updated_ms, beliefs
 
 
 def grasp_errors(beliefs: dict, records: dict, shape, truth_of) -> tuple[np.ndarray, np.ndarray]:
@@ -281,6 +314,12 @@ def print_results(result: dict) -> None:
           f"{latency['median']:.1f} / {latency['p95']:.1f} / {latency['max']:.1f}",
           "-" if updated["median"] is None else f"{updated['median']:.1f} / {updated['max']:.1f}",
           live["recompilations"]]]))
+    if "paced" in live:
+        paced = live["paced"]
+        print(f"paced at {paced['fps']:g} Hz ({'background' if result['background_update'] else 'synchronous'} "
+              f"updates): {paced['late_frames']} of {live['frames']} frames came out more than a frame period "
+              f"late; arrival to estimate median / p95 / max {paced['delay_ms']['median']:.1f} / "
+              f"{paced['delay_ms']['p95']:.1f} / {paced['delay_ms']['max']:.1f} ms")
     headers = ["after grasp", "live: estimates", "median RMSE (mm)", "<= 2 mm", "mean P(<= 2 mm)"]
     rows = [[r["grasp"], r["estimates"], r["median_rmse_mm"], r["within_2mm"], r["mean_p_within_2mm"]]
             for r in result["per_grasp"]]
@@ -316,7 +355,7 @@ def main() -> None:
     background = np.round(np.asarray(model.background) * 255).astype(np.uint8)
     video, opposite_video, openings, poses = write_videos(
         args, Path(args.work), name, records, opposite, background, settle, f"grasps-e{episodes}-g{grasps}")
-    live, updated_ms, beliefs = play_live(localizer, video, opposite_video, openings, poses,
+    live, updated_ms, beliefs = play_live(args, localizer, video, opposite_video, openings, poses,
                                           grasps * (settle + args.hold + args.gap), (episodes, grasps))
     errors, probability = grasp_errors(beliefs, records, (episodes, grasps), truth_of)
     reference = None
