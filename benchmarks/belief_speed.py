@@ -50,8 +50,8 @@ def main() -> None:
     args = parser.parse_args()
 
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
-    tactile_map = load_tactile_map(args.map)
-    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=False))
+    tactile_map = load_tactile_map(args.map, images=True)
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=False))
     stored = tactile_map_metadata(args.map).get("metadata", {}).get("belief_calibration")
     calibration = None if stored is None else calibration_from_json(stored)
     # The view holds the surface grid, the object's symmetries (catalog) and the calibration.

@@ -119,9 +119,9 @@ def main() -> None:
     parser.add_argument("--json", metavar="PATH")
     args = parser.parse_args()
 
-    maps = [load_tactile_map(path) for path in args.maps]
+    maps = [load_tactile_map(path, images=True) for path in args.maps]
     encoders = {name: resolve_encoder(name) for name in args.encoders}
-    image = np.asarray(maps[0].images[0])
+    image = np.asarray(maps[0].stored_images()[0])
     speed = encoder_speed(encoders, image, rounds=args.rounds, calls=args.calls)
     reference = args.encoders[0]
     print(f"one {image.shape[0]} x {image.shape[1]} image, {args.rounds} x {args.calls} calls per encoder")
@@ -138,7 +138,7 @@ def main() -> None:
             queries = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
         per_encoder = {}
         for name, encoder in encoders.items():
-            featured = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+            featured = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
             entry = {"recall": retrieval_recall(featured, queries, RECALL_AT)}
             if not args.no_localization:
                 entry["leave_one_out"] = leave_one_out(featured, queries)

@@ -79,10 +79,10 @@ def load_map(args, work: Path, model, encoder):
         grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
         tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                                         args.object, T_world_object=grasps["T_world_object"])
-        return tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True)), None
-    tactile_map = load_tactile_map(args.map)
+        return tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True)), None
+    tactile_map = load_tactile_map(args.map, images=True)
     if tactile_map.features.shape[1] == 0:
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     stored = tactile_map_metadata(args.map).get("metadata", {}).get("belief_calibration")
     usable = stored is not None and stored.get("encoder", args.encoder) == args.encoder
     return tactile_map, (calibration_from_json(stored) if usable else None)

@@ -73,7 +73,7 @@ def build_map(work: Path, name: str, model, encoder):
     grasps = read_grasps(path)
     tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"], name,
                                     T_world_object=grasps["T_world_object"])
-    return tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    return tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
 
 
 def open3d_register(o3d, source_points, target_points, target_normals, T_init, *, max_distance_mm, iterations):
@@ -115,9 +115,9 @@ def main() -> None:
 
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     if args.map:
-        tactile_map = load_tactile_map(args.map)
+        tactile_map = load_tactile_map(args.map, images=True)
         if tactile_map.features.shape[1] == 0:
-            tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+            tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     else:
         tactile_map = build_map(Path(args.work), args.object, model, encoder)
     view = LocalizationMap.from_tactile_map(tactile_map)
@@ -127,7 +127,7 @@ def main() -> None:
     settings = IcpSettings()
     rng = np.random.default_rng(0)
     order = rng.choice(valid, size=args.calls, replace=True)
-    image = jnp.asarray(tactile_map.images[int(order[0])], jnp.float32) / 255.0
+    image = jnp.asarray(tactile_map.stored_images()[int(order[0])], jnp.float32) / 255.0
     query = map_touch(view, int(order[0]))
     key = jax.random.key(0)
 

@@ -124,9 +124,9 @@ def main() -> None:
 
     results = []
     for path in args.maps:
-        tactile_map = load_tactile_map(path)
+        tactile_map = load_tactile_map(path, images=True)
         if tactile_map.features.shape[1] == 0:
-            tactile_map = tactile_map.with_features(encode_images(resolve_encoder(args.encoder), tactile_map.images,
+            tactile_map = tactile_map.with_features(encode_images(resolve_encoder(args.encoder), tactile_map.stored_images(),
                                                                   progress=True))
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
         queries = np.sort(np.random.default_rng(0).choice(valid, size=min(args.queries, len(valid)), replace=False))

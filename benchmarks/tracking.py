@@ -224,7 +224,7 @@ def main() -> None:
     grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
     tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                                     args.object, T_world_object=grasps["T_world_object"])
-    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     protocol = SlipProtocol(sequences=args.sequences, frames=args.frames)
     data = slip_sequences(work, args.object, protocol, args.seed)
     group = get_object(args.object).symmetry.transforms()

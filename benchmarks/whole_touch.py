@@ -110,7 +110,7 @@ def main() -> None:
     grasps = read_grasps(simulated(work, args.object, MappingProtocol(), "map-grid10"))
     tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"],
                                     args.object, T_world_object=grasps["T_world_object"])
-    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     touches = open_dataset(simulated(work, args.object, MappingProtocol(yaws_deg=(10.0,)), "touches-yaw10")).read(
         ["image", "opening_mm", "T_world_gripper", "T_world_object"])
     order = np.random.default_rng(1).permutation(len(touches["image"]))[:args.touches]

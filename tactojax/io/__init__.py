@@ -17,12 +17,16 @@ from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
 from tactojax.io._imprints import load_imprints as load_imprints
+from tactojax.io._map import MAP_VERSION as MAP_VERSION
 from tactojax.io._map import CorruptMapError as CorruptMapError
+from tactojax.io._map import compact_tactile_map as compact_tactile_map
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
 from tactojax.io._map import load_tactile_map as load_tactile_map
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
+from tactojax.io._map import stored_features_encoder as stored_features_encoder
+from tactojax.io._map import tactile_map_bytes as tactile_map_bytes
 from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
 from tactojax.io._presses import load_ball_presses as load_ball_presses
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
@@ -84,6 +88,10 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "tactile_map_bytes",
+    "stored_features_encoder",
+    "compact_tactile_map",
+    "MAP_VERSION",
     "bundled_encoders",
     "bundled_shape_models",
     "check_mesh",
