@@ -88,14 +88,11 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "tactile_map_bytes",
-    "stored_features_encoder",
-    "compact_tactile_map",
-    "MAP_VERSION",
     "bundled_encoders",
     "bundled_shape_models",
     "check_mesh",
     "ChunkProblem",
+    "compact_tactile_map",
     "CorruptCheckpointError",
     "CorruptChunkError",
     "CorruptDatasetError",
@@ -124,6 +121,7 @@ __all__ = [
     "load_torch_state_dict",
     "load_touches",
     "load_train_state",
+    "MAP_VERSION",
     "MESH_UNITS_TO_MM",
     "MeshRepair",
     "MeshRepairedWarning",
@@ -141,6 +139,8 @@ __all__ = [
     "save_tactile_map",
     "save_train_state",
     "shape_model_metadata",
+    "stored_features_encoder",
+    "tactile_map_bytes",
     "tactile_map_metadata",
     "taxim_calibration_dir",
     "TAXIM_SENSORS",

@@ -31,12 +31,6 @@ from tactojax.mapping._shape_fit import shape_fit_errors as shape_fit_errors
 from tactojax.mapping._shape_fit import true_shape_parameters as true_shape_parameters
 
 __all__ = [
-    "unpack_heightmaps",
-    "sample_contact_pixels",
-    "points_to_pixels",
-    "pixel_points",
-    "pixel_index_dtype",
-    "pack_heightmaps",
     "DEFAULT_POINTS_PER_IMPRINT",
     "NOISE_LEVELS",
     "SHAPE_KINDS",
@@ -50,6 +44,11 @@ __all__ = [
     "fit_tactile_map",
     "membrane_skirt",
     "observed_contact",
+    "pack_heightmaps",
+    "pixel_index_dtype",
+    "pixel_points",
+    "points_to_pixels",
+    "sample_contact_pixels",
     "shows_contact",
     "perturb_kinematics",
     "point_surface_distances",
@@ -59,5 +58,6 @@ __all__ = [
     "stitched_point_cloud",
     "surface_distance",
     "true_shape_parameters",
+    "unpack_heightmaps",
     "voxel_downsample",
 ]
