@@ -75,18 +75,21 @@ def stored_calibration(path, encoder_name: str | None):
 def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = True):
     """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration its file
     stores (:func:`stored_calibration`); with ``shared`` and several maps, all under their median
-    (:func:`~tactojax.localize.shared_calibration`), so that their evidences compare (P(object)).
+    (:func:`~tactojax.localize.shared_calibration`), so that their evidences compare (P(object));
+    all padded to one shape (:func:`~tactojax.localize.shared_shapes`).
 
     Returns:
         (views, calibrated): the views, and whether any map holds a calibration.
     """
-    from tactojax.localize import LocalizationMap, shared_calibration
+    from tactojax.localize import LocalizationMap, shared_calibration, shared_shapes
 
     calibrations = [stored_calibration(path, encoder_name) for path in paths]
     calibrated = any(c is not None for c in calibrations)
     if shared and len(maps) > 1:
         calibrations = [shared_calibration(calibrations)] * len(maps)
-    return [LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations)], calibrated
+    views = [LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations)]
+    # One shape for all maps: the belief compiles once, not once per map.
+    return shared_shapes(views), calibrated
 
 
 def object_symmetries(object_id: str):

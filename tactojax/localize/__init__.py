@@ -58,6 +58,7 @@ from tactojax.localize._localizer import touch_from_image as touch_from_image
 from tactojax.localize._map import BeliefCalibration as BeliefCalibration
 from tactojax.localize._map import LocalizationMap as LocalizationMap
 from tactojax.localize._map import Touch as Touch
+from tactojax.localize._map import shared_shapes as shared_shapes
 from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
 from tactojax.localize._new_grasps import TestEpisodes as TestEpisodes
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
@@ -116,6 +117,7 @@ __all__ = [
     "map_size_study",
     "record_beliefs",
     "shared_calibration",
+    "shared_shapes",
     "touch_from_image",
     "update_belief",
     "estimate_pose",

@@ -46,7 +46,7 @@ from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
 from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
-from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
@@ -278,7 +278,8 @@ class Localizer:
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
         self.settings, self.live = settings, live
-        self.views = tuple(LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations))
+        self.views = tuple(shared_shapes([LocalizationMap.from_tactile_map(m, calibration=c)
+                                          for m, c in zip(maps, calibrations)]))
         start = time.perf_counter()
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
         self._model = (model, jax.jit(coordinate_bias)(model))
@@ -296,9 +297,11 @@ class Localizer:
         summarise = jax.jit(lambda belief: _summarise(belief, live.modes))
         # Strongly typed, as every updated belief is (a weak type would not match them).
         self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
-        self._update = tuple(update.lower(view, empty, example_touch, pose).compile()
-                             for view, empty in zip(self.views, self._empty))
-        self._summarise = tuple(summarise.lower(empty).compile() for empty in self._empty)
+        # The maps share one shape (shared_shapes): one compilation serves them all.
+        compiled_update = update.lower(self.views[0], self._empty[0], example_touch, pose).compile()
+        compiled_summarise = summarise.lower(self._empty[0]).compile()
+        self._update = (compiled_update,) * len(self.views)
+        self._summarise = (compiled_summarise,) * len(self.views)
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
                                                            pose.wxyz_xyz).compile()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -123,20 +125,24 @@ class LocalizationMap:
 
         Maps of similar sizes then share one compilation of everything that reads them.
         """
-        count = len(self)
-        extra = -count % max(int(multiple), 1)
-        if extra == 0:
+        return self.padded_to(len(self) + (-len(self) % max(int(multiple), 1)))
+
+    def padded_to(self, count: int) -> LocalizationMap:
+        """The map padded with invalid imprints to ``count`` imprints (at least its own)."""
+        extra = count - len(self)
+        if extra <= 0:
             return self
 
         def pad(x):  # (packed heightmaps: -0.0 is off contact)
             fill = -0.0 if x.dtype == jnp.float16 else 0
             return jnp.concatenate([x, jnp.full((extra, *x.shape[1:]), fill, x.dtype)])
 
+        own = len(self)
         per_imprint = self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz), surface=None,
                                    symmetries=None, calibration=None)
         view = jax.tree.map(pad, per_imprint)
         identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (extra, 7))
-        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[count:].set(identity)),
+        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[own:].set(identity)),
                             surface=self.surface, symmetries=self.symmetries, calibration=self.calibration)
 
     def imprints_near(self, T_object_sensor: jaxlie.SE3, centre: Float[Array, "3"], count: int, *,
@@ -215,3 +221,34 @@ def catalog_symmetries(object_id: str) -> jaxlie.SE3:
     if object_id not in CATALOG:
         return jaxlie.SE3.identity((1,))
     return get_object(object_id).symmetry.transforms()
+
+
+def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
+    """The maps padded to one shape, so that everything that reads them compiles once for all:
+    invalid imprints up to the largest map's count, surface grids extended on their far sides with
+    unknown cells (NaN) up to the largest grid's, symmetry lists with identity copies up to the
+    longest (a copy of the identity changes no distance up to symmetry).
+
+    Raises:
+        ValueError: the maps differ in what cannot be padded (pixel pitch, grid pitch, feature size).
+    """
+    views = list(views)
+    if len(views) < 2:
+        return views
+    for name, value in (("mm_per_px", lambda v: v.mm_per_px), ("surface pitch", lambda v: v.surface.pitch_mm),
+                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.packed_heightmaps.shape[1:])):
+        if len({value(v) for v in views}) > 1:
+            raise ValueError(f"the maps differ in {name} ({[value(v) for v in views]}): they cannot share one shape")
+    count = max(len(v) for v in views)
+    grid = tuple(max(v.surface.distance.shape[axis] for v in views) for axis in range(3))
+    copies = max(v.symmetries.wxyz_xyz.shape[0] for v in views)
+
+    def extended(view: LocalizationMap) -> LocalizationMap:
+        distance = view.surface.distance
+        distance = jnp.pad(distance, [(0, n - m) for n, m in zip(grid, distance.shape)], constant_values=jnp.nan)
+        symmetries = view.symmetries.wxyz_xyz
+        identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (copies - symmetries.shape[0], 7))
+        return view.padded_to(count).replace(surface=view.surface.replace(distance=distance),
+                                             symmetries=jaxlie.SE3(jnp.concatenate([symmetries, identity])))
+
+    return [extended(view) for view in views]

@@ -223,7 +223,8 @@ class Tracker:
                       opening=_NO_OPENING)
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
         frame = jax.jit(functools.partial(_track_frame, tracking=tracking, settings=icp))
-        self._track = tuple(frame.lower(view, touch, pose, pose).compile() for view in self.localizer.views)
+        # The localizer's maps share one shape (shared_shapes): one compilation serves them all.
+        self._track = (frame.lower(self.localizer.views[0], touch, pose, pose).compile(),) * len(self.localizer.views)
         self.compile_s = self.localizer.compile_s + time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self.relocalizations = 0

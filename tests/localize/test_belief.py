@@ -9,7 +9,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize import BeliefCalibration, LocalizationMap, empty_belief
+from tactojax.localize import BeliefCalibration, LocalizationMap, empty_belief, shared_shapes
 from tactojax.localize._belief import calibrated_log_likelihood, touch_terms
 from tactojax.localize._likelihood import LikelihoodSettings, point_log_likelihoods
 from tactojax.localize._localize import jitted_update as update
@@ -89,6 +89,31 @@ def test_one_touch_off_the_grid_is_found(bumps_view, synthetic, belief_settings)
     assert float(jnp.sum(belief.probabilities)) == pytest.approx(1.0, abs=1e-5)
     assert 0.0 <= float(belief.probability_within()) <= 1.0 + 1e-6
     assert int(belief.touches) == 1 and np.isfinite(float(belief.log_evidence))
+
+
+def test_maps_padded_to_one_shape_localize_as_before(bumps_view, ridges_view, synthetic, belief_settings):
+    """shared_shapes pads a map (imprints, surface grid, symmetry copies) to a larger map's shape;
+    the belief then compiles once for both, and the padding changes nothing it finds."""
+    larger = ridges_view.padded_to(len(ridges_view) + 7)
+    turn = jaxlie.SE3.from_rotation(jaxlie.SO3.from_z_radians(jnp.pi)).wxyz_xyz[None]
+    larger = larger.replace(surface=larger.surface.replace(distance=jnp.pad(larger.surface.distance, 3,
+                                                                            constant_values=jnp.nan)),
+                            symmetries=jaxlie.SE3(jnp.concatenate([larger.symmetries.wxyz_xyz, turn])))
+    padded, other = shared_shapes([bumps_view, larger])
+    assert padded.surface.distance.shape == other.surface.distance.shape == larger.surface.distance.shape
+    assert len(padded) == len(other) == len(larger) and padded.symmetries.wxyz_xyz.shape == (2, 7)
+    touches = [synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y)) for x, y in ((1.5, -1.0), (-2.0, 2.5))]
+    beliefs = []
+    for view in (bumps_view, padded):
+        belief = empty_belief(view, belief_settings)
+        for t, (x, y) in zip(touches, ((1.5, -1.0), (-2.0, 2.5))):
+            belief = update(view, belief, t, synthetic.sensor_pose(x, y), belief_settings)
+        beliefs.append(belief)
+    original, padded_belief = beliefs
+    np.testing.assert_allclose(padded_belief.best.wxyz_xyz, original.best.wxyz_xyz, atol=1e-4)
+    assert float(padded_belief.probability_within()) == pytest.approx(float(original.probability_within()), abs=1e-4)
+    with pytest.raises(ValueError, match="mm_per_px"):
+        shared_shapes([bumps_view, bumps_view.replace(mm_per_px=bumps_view.mm_per_px * 2)])
 
 
 def test_two_touches_fuse_as_brute_force_enumeration(bumps_view, synthetic, belief_settings):
