@@ -1,0 +1,121 @@
+"""What limits the fused pose belief on new grasps: the map's surface, the predicted touches, or the search?
+
+The belief scores every hypothesis by how its touches fit the map's signed-distance surface
+(built from the map's *predicted* heightmaps), using each touch's *predicted* heightmap and
+contact mask. This script swaps in exact data one part at a time and runs the same belief
+(:func:`tactojax.localize.evaluate_new_grasps`) on the same episodes:
+
+- **surface**: the map's, or the object's true signed distance (the simulator's solid) on the
+  same grid, known where it is within the map's reach of the surface;
+- **touches**: the shape model's heightmaps and contact masks, or the simulator's.
+
+When exact data lifts the share within 2 mm, the data (local shape, mapping) is the limit; when
+exact data still misses, the touches do not carry the information or the search does not find
+it. Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
+catalog's). Needs a catalog object (its true solid). The map's stored belief calibration is used.
+
+    python benchmarks/belief_limits.py gum_box.npz --test data/dev-gum_box --json limits.json
+    python benchmarks/belief_limits.py --quick     # smoke run: 2 episodes of 2 grasps, scissors on a 20 mm map
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
+from tactojax.localize import LocalizationMap, evaluate_new_grasps, load_test_episodes
+from tactojax.objects import get_object
+
+try:  # run as ``python benchmarks/belief_limits.py`` or as a module
+    from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
+                                    map_paths, new_grasps_set, write_json)
+except ImportError:
+    from _common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, map_paths,
+                         new_grasps_set, write_json)
+
+REACH_MM = 1.5
+"""The true surface is known where the object's surface is this close (the map's own reach), mm."""
+
+
+def true_surface(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> LocalizationMap:
+    """``view`` with its surface grid replaced by the object's exact signed distance at the same
+    cells (NaN, unknown, farther than ``reach_mm`` from the surface)."""
+    solid = get_object(object_id).solid
+    grid = view.surface.distance
+    cells = jnp.stack(jnp.meshgrid(*(jnp.arange(n) for n in grid.shape), indexing="ij"), -1).reshape(-1, 3)
+    centres = view.surface.origin + cells * view.surface.pitch_mm
+    distance = jax.lax.map(solid.sdf, centres, batch_size=4096).reshape(grid.shape)
+    distance = jnp.where(jnp.abs(distance) <= reach_mm, distance, jnp.nan).astype(jnp.float32)
+    return view.replace(surface=view.surface.replace(distance=distance))
+
+
+def exact_touches(episodes, test, object_id: str):
+    """``episodes`` with the simulator's heightmaps and contact masks instead of the predicted ones."""
+    truth = read_test_grasps(test, ["heightmap", "mask"], object_id=object_id)
+    shape = episodes.masks.shape  # (E, G, F, H, W), in the order load_test_episodes reads them
+    return episodes.replace(heightmaps=jnp.asarray(np.asarray(truth["heightmap"], np.float32).reshape(shape)),
+                            masks=jnp.asarray(np.asarray(truth["mask"], bool).reshape(shape)))
+
+
+def belief_rows(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
+    """Per number of fused grasps: the share within 2 mm and the median error (symmetry-aware)."""
+    symmetric = view.symmetries.wxyz_xyz.shape[0] > 1
+    rows = []
+    for result in evaluate_new_grasps(view, episodes, methods=("belief",), fingers=fingers):
+        if not result.fused:
+            continue
+        error = result.symmetric_rmse if symmetric else result.rmse
+        rows.append({"grasps": result.grasps, "within_2mm": float(np.mean(error <= 2.0)),
+                     "median_rmse_mm": float(np.median(error)), "mean_p_within_2mm": float(np.mean(result.probability))})
+    return rows
+
+
+def parse_args() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_map_arguments(parser)
+    parser.add_argument("--test", metavar="DIR", help="new-grasps test set of the map's object (default: simulate one)")
+    parser.add_argument("--fingers", type=int, choices=[1, 2], default=2, help="fingers fused per grasp (default 2)")
+    parser.add_argument("--episodes", type=int, default=32, help="episodes of a simulated test set (default 32)")
+    add_common_arguments(parser, quick="2 episodes of 2 grasps, a 20 mm map", seed_help="a simulated test set")
+    args = parser.parse_args()
+    if args.quick:
+        args.episodes = min(args.episodes, 2)
+    return args
+
+
+def main() -> None:
+    args = parse_args()
+    model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
+    ((tactile_map, calibration),) = load_maps(args, model, encoder)
+    name = tactile_map.object_id
+    test = new_grasps_set(args, name, episodes=args.episodes, grasps=2 if args.quick else 3, fingers=2)
+    episodes, _ = load_test_episodes(test, name, model, encoder, progress=False)
+    view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
+    exact_view, exact_episodes = true_surface(view, name), exact_touches(episodes, test, name)
+    cases = {("map", "predicted"): (view, episodes), ("true", "predicted"): (exact_view, episodes),
+             ("map", "exact"): (view, exact_episodes), ("true", "exact"): (exact_view, exact_episodes)}
+    results = []
+    for (surface, touches), (case_view, case_episodes) in cases.items():
+        print(f"surface: {surface}, touches: {touches} ...", flush=True)
+        results.append({"surface": surface, "touches": touches,
+                        "per_grasps": belief_rows(case_view, case_episodes, args.fingers)})
+    grasps = [row["grasps"] for row in results[0]["per_grasps"]]
+    print(format_table(
+        ["surface", "touches"] + [f"{g} grasp{'s' * (g > 1)}: within 2 mm, median" for g in grasps],
+        [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
+                                         for row in r["per_grasps"]] for r in results]))
+    print(f"{name}: {episodes.openings.shape[0]} episodes x {args.fingers} finger(s); calibration: "
+          f"{'stored' if calibration is not None else 'none (default)'}")
+    if args.json:
+        write_json(args.json, {"object": name, "map": (map_paths(args) or [name])[0], "test": str(test),
+                               "fingers": args.fingers, "episodes": int(episodes.openings.shape[0]),
+                               "results": results, "seed": args.seed, "machine": machine_info()})
+        print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
