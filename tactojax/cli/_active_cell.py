@@ -62,7 +62,9 @@ def run_simulated_active(spec, obj, maps, model, encoder, *, calibrations=None, 
                                    cell.gripper.opening_mm, cell.poses, plan.T_world_gripper,
                                    second_camera=cell.second_camera, max_grasps=max_grasps, candidates=candidates,
                                    settings=settings, recorder=recorder, object_id=object_id or obj.name):
-            T_object_gripper = T_world_object.inverse() @ step.T_world_gripper
+            # Where the jaws held it (the commanded pose re-centred by the wrist), else where commanded.
+            held = step.T_world_gripper if step.T_world_gripper_held is None else step.T_world_gripper_held
+            T_object_gripper = T_world_object.inverse() @ held
             centre = np.asarray(T_object_gripper.translation())
             closing = np.asarray(T_object_gripper.rotation().as_matrix())[:, 1]
             error = float(belief_error(step.belief, T_world_object)) if step.belief is not None else None
@@ -123,8 +125,8 @@ def _print_rows(rows: list[dict]) -> None:
               f"{row['yaw_deg']:.0f}", "missed" if row["opening_mm"] is None else number(row["opening_mm"], 1),
               number(row["expected_gain"]), number(row["probability_within_2mm"]), number(row["error_mm"])]
              for row in rows]
-    print("each executed grasp: its centre in the object frame and yaw, the opening, the expected gain in "
-          "P(within 2 mm) it was chosen for, and the belief after it (error: the fused touches' RMSE, up to "
+    print("each executed grasp: its centre in the object frame (where the jaws held it) and yaw, the opening, "
+          "the expected gain in P(within 2 mm) it was chosen for, and the belief after it (error: the fused touches' RMSE, up to "
           "symmetry)")
     print(format_table(["grasp", "chosen", "centre (mm)", "yaw (deg)", "opening (mm)", "expected gain",
                         "P(within 2 mm)", "error (mm)"], table))

@@ -55,6 +55,9 @@ class ActiveStep:
     """Its expected gain in P(within 2 mm) (``settings.objective``'s unit; nan for a first grasp)."""
     opening_mm: float | None
     """The opening at contact, mm (None: the jaws closed on nothing)."""
+    T_world_gripper_held: jaxlie.SE3 | None
+    """Where the gripper held the object (the pose feed's at the frame): the commanded pose
+    re-centred along the closing axis by the compliant wrist, mm (None after a miss)."""
     fused: bool
     """Whether the grasp's touches updated the belief (it closed and the frames showed contact)."""
     estimate: LiveEstimate | None
@@ -148,9 +151,10 @@ def active_episode(
             T_world_gripper, gain = _take(proposals, best), float(ranking.gain[best])
             choice_s = time.perf_counter() - start
         executed = execute_grasp(robot, T_world_gripper, while_closed=hold, approach_mm=approach_mm)
-        before = localizer.grasps
+        before, held = localizer.grasps, None
         if executed.held is not None:
             touch, second = executed.held
+            held = jaxlie.SE3(np.asarray(touch.T_world_gripper.wxyz_xyz, np.float32))
             estimate = localizer.fuse(touch.image, touch.opening_mm, touch.T_world_gripper, second)
         fused = localizer.grasps > before
         if fused and recorder is not None:
@@ -159,8 +163,8 @@ def active_episode(
         belief = localizer.beliefs[_chosen_map(localizer, estimate)] if localizer.grasps else None
         stop = belief is not None and bool(should_stop(belief, settings.stop_probability))
         yield ActiveStep(grasp=charged, chosen=chosen, T_world_gripper=T_world_gripper, gain=gain,
-                         opening_mm=executed.opening_mm, fused=fused, estimate=estimate, belief=belief, stop=stop,
-                         choice_s=choice_s)
+                         opening_mm=executed.opening_mm, T_world_gripper_held=held, fused=fused, estimate=estimate,
+                         belief=belief, stop=stop, choice_s=choice_s)
         if stop:
             return
 

@@ -1,8 +1,10 @@
-"""``tactojax eval-active`` on a tiny case: one episode, two grasps, the cylinder's small map."""
+"""``tactojax eval-active`` on a tiny case: one episode, two grasps, the cylinder's small map; and
+``tactojax record --active`` (slow): one active episode on the simulated cell."""
 
 import json
 
 import numpy as np
+import pytest
 
 from tactojax.cli import main
 from tactojax.io import save_shape_model, save_tactile_map
@@ -33,6 +35,7 @@ def test_eval_active_runs_the_closed_loop(cylinder_map, lookup_model, tiny_encod
     assert (tmp_path / "active.png").stat().st_size > 0
 
 
+@pytest.mark.slow  # compiles a full-size live localizer (tens of seconds); tests/hardware/test_active.py runs the loop
 def test_record_runs_an_active_episode_on_the_simulated_cell(cylinder_map, lookup_model, tiny_encoder_path, tmp_path,
                                                              capsys):
     from tactojax.io import open_dataset

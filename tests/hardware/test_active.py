@@ -117,6 +117,9 @@ def test_an_active_episode_fuses_every_grasp_without_recompiling(small_spec, act
             assert active_localizer.grasps == len(fused) >= 1
             assert int(np.sum(np.asarray(taken[-1].belief.touch_valid))) == 2 * len(fused)
             assert all(step.opening_mm is not None for step in fused)
+            for step in fused:  # held where commanded, re-centred along the closing axis (y) only
+                offset = np.asarray((step.T_world_gripper.inverse() @ step.T_world_gripper_held).translation())
+                np.testing.assert_allclose(offset[[0, 2]], 0.0, atol=1e-2)
             assert np.isfinite(chosen[0].gain) and chosen[0].choice_s > 0
             error = float(belief_error(taken[-1].belief, T_world_object))
             assert np.isfinite(error)
