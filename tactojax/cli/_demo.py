@@ -12,6 +12,9 @@
    grid: episodes of grasps with both fingers while the object stays put, fused grasp by grasp
    by the kinematics; its error and its predicted P(within 2 mm) after 1 and 3 grasps, and a
    figure of where it puts the sensor.
+6. Active touch on the simulated robot cell: the live localizer fuses each grasp of one object
+   and chooses the next by expected gain in P(within 2 mm), until it is sure or after 3 grasps;
+   the grasps chosen and the belief after each, and a figure of both.
 
 Tables are printed, figures saved as PNG and everything can be written as JSON.
 """
@@ -31,6 +34,7 @@ from tactojax.io import DEFAULT_ENCODER
 
 DEMO_OBJECTS = ("scissors", "tape_roll", "gum_box")
 DEMO_METHODS = ("random", "cti", "cti-icp-5")
+DEMO_ACTIVE_OBJECT = "gum_box"
 
 
 def add_parser(commands) -> None:
@@ -50,6 +54,12 @@ def add_parser(commands) -> None:
                         help="new-grasps episodes per object for the belief (step 5; default 4)")
     parser.add_argument("--grasps", type=int, default=3,
                         help="grasps per episode, both fingers each (step 5; default 3)")
+    parser.add_argument("--active-object", default=DEMO_ACTIVE_OBJECT,
+                        help=f"the object of the active episode (step 6; default {DEMO_ACTIVE_OBJECT}, else the first)")
+    parser.add_argument("--active-grasps", type=int, default=3,
+                        help="grasps of the active episode at most (step 6; default 3, 0 skips it)")
+    parser.add_argument("--active-candidates", type=int, default=32,
+                        help="grasps proposed per choice (step 6; default 32)")
     parser.add_argument("--model", default=DEFAULT_MODEL, help="shape model")
     parser.add_argument("--encoder", default=DEFAULT_ENCODER, help="feature encoder")
     parser.add_argument("--json", metavar="PATH", help="also write every table as JSON")
@@ -80,6 +90,8 @@ def run(args) -> int:
     report["identification"] = _identification(maps, out)
     steps["belief"] = time.perf_counter()
     report["belief"] = _belief(args, spec, model, encoder, maps, out)
+    steps["active"] = time.perf_counter()
+    report["active"] = _active(args, spec, model, encoder, maps, out)
     report["seconds"] = time.perf_counter() - start
     ends = [*list(steps.values())[1:], start + report["seconds"]]
     report["step_seconds"] = {name: end - begin for (name, begin), end in zip(steps.items(), ends)}
@@ -104,7 +116,7 @@ def _local_shape(args, spec, model, out: Path) -> dict:
 
     path = out / "datasets" / "calibration"
     shutil.rmtree(path, ignore_errors=True)
-    print(f"1/5 local shape: simulating {args.calibration_touches} touches of each calibration shape")
+    print(f"1/6 local shape: simulating {args.calibration_touches} touches of each calibration shape")
     for index, name in enumerate(CALIBRATION_SHAPES):
         simulate_to_dataset(path, jax.random.key(args.seed + index), spec, get_object(name),
                             CalibrationProtocol(touches=args.calibration_touches), progress=False)
@@ -132,7 +144,7 @@ def _maps(args, spec, model, encoder, out: Path):
     protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg))
     maps, rows, records = [], [], {}
     (out / "maps").mkdir(parents=True, exist_ok=True)
-    print(f"\n2/5 tactile maps: {protocol.grid_mm:g} mm grid, yaws {list(protocol.yaws_deg)} deg")
+    print(f"\n2/6 tactile maps: {protocol.grid_mm:g} mm grid, yaws {list(protocol.yaws_deg)} deg")
     for index, name in enumerate(args.objects):
         try:
             obj = get_object(name)
@@ -174,7 +186,7 @@ def _localization(args, maps, out: Path) -> dict:
     from tactojax.viz import localization_histogram_figure, save_png
 
     methods = [parse_method(m).name for m in args.methods.split(",") if m.strip()]
-    print(f"\n3/5 localization: leave-one-out, up to {args.queries} held-out touches per object")
+    print(f"\n3/6 localization: leave-one-out, up to {args.queries} held-out touches per object")
     rows, histograms, payload = [], {}, {}
     for tactile_map in maps:
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
@@ -200,7 +212,7 @@ def _identification(maps, out: Path) -> dict:
     from tactojax.localize import evaluate_identification
     from tactojax.viz import confusion_figure, save_png
 
-    print("\n4/5 identification: every touch held out of its own map")
+    print("\n4/6 identification: every touch held out of its own map")
     result = evaluate_identification(maps)
     confusion, names = result.confusion(), list(result.object_ids)
     print(f"top-1 {100 * result.accuracy():.1f} % of {len(result.true)} touches")
@@ -224,7 +236,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     protocol = GraspsProtocol(episodes=args.episodes, grasps_per_episode=args.grasps, fingers=2,
                               turns_deg=(0.0, 180.0))
     shown = sorted({1, args.grasps})
-    print(f"\n5/5 the pose belief on new grasps: {args.episodes} episodes of {args.grasps} grasps per object, off "
+    print(f"\n5/6 the pose belief on new grasps: {args.episodes} episodes of {args.grasps} grasps per object, off "
           "the mapping grid, both fingers; each grasp fused by the kinematics (uncalibrated: `tactojax "
           "calibrate-belief` fits its scales on grasps of the object's own)")
     rows, payload, examples, curves = [], {}, {}, {}
@@ -277,6 +289,23 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     figure = save_png(belief_figure(examples, curves), out / "demo_belief.png")
     print(f"figure: {figure}")
     return {"objects": payload, "figure": str(figure)}
+
+
+def _active(args, spec, model, encoder, maps, out: Path) -> dict:
+    """Beyond the paper: one active episode on the simulated cell (robot, cameras, pose feed)."""
+    from tactojax.cli._active_cell import run_simulated_active
+    from tactojax.objects import get_object
+
+    if args.active_grasps < 1:
+        print("\n6/6 active touch: skipped (--active-grasps 0)")
+        return {}
+    chosen = next((m for m in maps if m.object_id == args.active_object), maps[0])
+    print(f"\n6/6 active touch on the simulated robot cell: {chosen.object_id}, both fingers; after a first grasp the "
+          f"live localizer chooses each grasp among {args.active_candidates} proposals by expected gain in P(within "
+          f"2 mm), until P >= 0.95 or {args.active_grasps} grasps (uncalibrated)")
+    return run_simulated_active(spec, get_object(chosen.object_id), [chosen], model, encoder,
+                                max_grasps=args.active_grasps, candidates=args.active_candidates, seed=args.seed,
+                                figure=out / "demo_active.png")
 
 
 @jax.jit

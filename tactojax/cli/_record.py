@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from tactojax.cli._active_cell import add_active_arguments
+from tactojax.cli._map import DEFAULT_MODEL
+
 
 def add_parser(commands) -> None:
     parser = commands.add_parser(
@@ -10,7 +13,10 @@ def add_parser(commands) -> None:
                     "one touch each time the gripper starts holding a part (the robot is driven by your "
                     "own software). Simulated cell (--simulate OBJECT): run the mapping protocol on the "
                     "simulator through the same devices (a WSG-50 emulator, a UDP pose feed). Every "
-                    "touch is on disk when it is counted; a killed recording keeps all completed touches.")
+                    "touch is on disk when it is counted; a killed recording keeps all completed touches. "
+                    "With --active MAP, the simulated cell runs an active episode instead: both jaws carry a "
+                    "sensor, the live localizer fuses every grasp and chooses the next by expected gain in "
+                    "P(within 2 mm) until it is sure (--stop) or --max-grasps; each grasp's touch is recorded.")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--object-id", help="name of the object in the records (default: the simulated object)")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
@@ -30,6 +36,16 @@ def add_parser(commands) -> None:
     simulated.add_argument("--grid-mm", type=float, default=10.0, help="mapping grid spacing, mm (default 10)")
     simulated.add_argument("--yaws-deg", type=float, nargs="+", default=[0.0, 20.0, -20.0])
     simulated.add_argument("--turns-deg", type=float, nargs="+", default=[0.0, 90.0, 180.0, 270.0])
+    active = parser.add_argument_group("active episode on the simulated cell")
+    active.add_argument("--active", nargs="+", metavar="MAP", help="object maps (.npz): run an active episode")
+    active.add_argument("--turn-deg", type=float, default=0.0, help="the object's turn about the vertical, degrees")
+    add_active_arguments(active)
+    active.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
+    active.add_argument("--encoder", default=None,
+                        help="feature encoder (default: the features stored in the maps)")
+    active.add_argument("--seed", type=int, default=0, help="placement, first grasp, proposals and sensor noise")
+    active.add_argument("--figure", metavar="PNG", help="write the chosen grasps and the belief after each")
+    active.add_argument("--json", metavar="PATH", help="write every executed grasp as JSON")
     parser.set_defaults(run=run)
 
 
@@ -54,6 +70,8 @@ def run(args) -> int:
     from tactojax.simulate import MappingProtocol, mapping_plan
 
     spec = sensor_preset(args.sensor, scale=args.scale)
+    if args.active:
+        return _run_active(args, spec)
     if args.simulate:
         obj = resolve_object(args.simulate)
         plan = mapping_plan(obj, MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg),
@@ -79,4 +97,31 @@ def run(args) -> int:
                 poses.close()
     print(f"recorded {summary.recorded} touches to {args.out} ({summary.missed} grasps missed the object, "
           f"{summary.stale} dropped for stale data)")
+    return 0
+
+
+def _run_active(args, spec) -> int:
+    from tactojax.cli._active_cell import run_simulated_active
+    from tactojax.cli._maps import maps_and_query_encoder, stored_calibration
+    from tactojax.cli._table import write_json
+    from tactojax.hardware import Recorder
+    from tactojax.io import resolve_shape_model
+    from tactojax.objects import resolve_object
+
+    if not args.simulate:
+        raise ValueError("--active runs on the simulated cell: pass --simulate OBJECT")
+    obj = resolve_object(args.simulate)
+    model = resolve_shape_model(args.model)
+    maps, encoder = maps_and_query_encoder(args.active, args.encoder)
+    calibrations = [stored_calibration(path, args.encoder) for path in args.active]
+    source = {"simulated": obj.name, "gripper": "WSG-50 emulator over TCP", "pose": "UDP", "active": list(args.active)}
+    with Recorder(args.out, spec, source=source) as recorder:
+        report = run_simulated_active(spec, obj, maps, model, encoder, calibrations=calibrations,
+                                      turn_deg=args.turn_deg, max_grasps=args.max_grasps, candidates=args.candidates,
+                                      stop=args.stop, seed=args.seed, recorder=recorder,
+                                      object_id=args.object_id or obj.name, figure=args.figure)
+        recorded = len(recorder)
+    print(f"recorded {recorded} touches to {args.out} (the sensor finger of every fused grasp)")
+    if args.json:
+        write_json(args.json, report)
     return 0

@@ -10,8 +10,11 @@ code runs against the simulator:
   :class:`WSG50Emulator` (the same protocol over a pseudo-terminal or TCP, with faults);
 - robot pose: :class:`PoseLog` (CSV/JSON), :class:`UdpPoseReceiver`; :func:`synchronise` pairs a
   frame with the opening and pose at its time;
-- robot: the :class:`Robot` interface, :class:`SimulatedRobot` on a :class:`SimulatedScene`,
-  :func:`simulated_cell` for the whole simulated cell;
+- robot: the :class:`Robot` interface, :func:`execute_grasp` (approach, grasp, release,
+  retreat), :class:`SimulatedRobot` on a :class:`SimulatedScene`, :func:`simulated_cell` for the
+  whole simulated cell;
+- active touch: :func:`active_episode` lets the live localizer choose every next grasp
+  (:func:`~tactojax.localize.next_grasp`) until it is sure;
 - recording: :class:`Recorder`, :func:`record_protocol` (the mapping protocol on any robot),
   :func:`record_grasps` (passive);
 - live loop: :func:`live_estimates` runs a :class:`~tactojax.localize.Localizer` on frames;
@@ -21,6 +24,8 @@ code runs against the simulator:
 Importing this package imports OpenCV and pyserial; the numerical core never does.
 """
 
+from tactojax.hardware._active import ActiveStep as ActiveStep
+from tactojax.hardware._active import active_episode as active_episode
 from tactojax.hardware._bag_import import BagImportSummary as BagImportSummary
 from tactojax.hardware._bag_import import GraspDetection as GraspDetection
 from tactojax.hardware._bag_import import detect_grasps as detect_grasps
@@ -53,7 +58,11 @@ from tactojax.hardware._recorder import Recorder as Recorder
 from tactojax.hardware._recorder import RecordingSummary as RecordingSummary
 from tactojax.hardware._recorder import record_grasps as record_grasps
 from tactojax.hardware._recorder import record_protocol as record_protocol
+from tactojax.hardware._robot import APPROACH_MM as APPROACH_MM
+from tactojax.hardware._robot import ExecutedGrasp as ExecutedGrasp
 from tactojax.hardware._robot import Robot as Robot
+from tactojax.hardware._robot import approach_pose as approach_pose
+from tactojax.hardware._robot import execute_grasp as execute_grasp
 from tactojax.hardware._rosbag import BagError as BagError
 from tactojax.hardware._rosbag import GripperJoints as GripperJoints
 from tactojax.hardware._rosbag import TransformChain as TransformChain

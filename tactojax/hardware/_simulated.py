@@ -5,7 +5,8 @@ It plays the physical parts of a real cell: when the simulated robot closes the 
 runs the grasp simulation (:func:`tactojax.simulate.simulate_grasps`: jaws stop on the object,
 the gel is indented, the compliant wrist centres the gripper), tells the gripper *emulator*
 where the jaws stop (so the opening comes back through the gripper's own protocol), shows the
-rendered tactile image to the :class:`SimulatedCamera`, and reports the arm's settled pose to
+rendered tactile image to the :class:`SimulatedCamera` (one per finger with a gel: with
+``fingers=2`` the opposite jaw carries a sensor too), and reports the arm's settled pose to
 whoever listens (e.g. a UDP pose publisher), exactly as a real cell's devices would.
 """
 
@@ -29,7 +30,7 @@ from tactojax.hardware._wsg50 import WSG50
 from tactojax.hardware._wsg50_emulator import WSG50Emulator
 from tactojax.objects import TactileObject
 from tactojax.sensor import SensorSpec, render_image
-from tactojax.simulate import GraspConfig, simulate_grasps
+from tactojax.simulate import GraspConfig, simulate_grasps, simulate_two_sensor_grasps
 
 
 def _to_uint8(image: jax.Array) -> np.ndarray:
@@ -47,18 +48,23 @@ class SimulatedScene:
         T_world_object: its pose, mm (change it with :meth:`place_object`, as an operator turns it).
         config: gripper and contact settings of the simulator.
         seed: seed of the simulated sensor noise.
+        fingers: jaws with a gel sensor: 1 (the sensor jaw; a rigid opposite pad) or 2 (both,
+            :func:`tactojax.simulate.simulate_two_sensor_grasps`).
     """
 
     def __init__(self, spec: SensorSpec, obj: TactileObject, T_world_object: jaxlie.SE3 | None = None, *,
-                 config: GraspConfig = GraspConfig(), seed: int = 0):
-        self.spec, self.object, self.config = spec, obj, config
+                 config: GraspConfig = GraspConfig(), seed: int = 0, fingers: int = 1):
+        if fingers not in (1, 2):
+            raise ValueError(f"fingers must be 1 or 2, got {fingers}")
+        self.spec, self.object, self.config, self.fingers = spec, obj, config, fingers
         self.T_world_object = jaxlie.SE3.identity() if T_world_object is None else T_world_object
         self._key = jax.random.key(seed)
         self._grasps = 0
         self._lock = threading.Lock()
-        self._simulate = jax.jit(lambda key, T_wo, T_wg: simulate_grasps(key, spec, obj, T_wo, T_wg, config))
+        simulate = simulate_grasps if fingers == 1 else simulate_two_sensor_grasps
+        self._simulate = jax.jit(lambda key, T_wo, T_wg: simulate(key, spec, obj, T_wo, T_wg, config))
         self._background = _to_uint8(render_image(spec, jnp.zeros(spec.shape)))
-        self._image = self._background
+        self._images = (self._background,) * fingers
         self._T_world_gripper = jaxlie.SE3.identity()
         self._listeners: list[Callable[[float, jaxlie.SE3], None]] = []
 
@@ -96,21 +102,28 @@ class SimulatedScene:
             result = jax.device_get(self._simulate(key, self.T_world_object, T_world_gripper))
         if not bool(result.valid[0]):
             return None
+        # The first grasp of the batch, its fingers as a leading axis (one finger: add it).
+        imprint = jax.tree.map(lambda x: x[0] if self.fingers == 2 else x, result.imprint)
         with self._lock:
-            self._image = _to_uint8(result.imprint.image[0])
-        self._settle(jaxlie.SE3(jnp.asarray(result.imprint.T_world_gripper.wxyz_xyz[0])))  # wrist compliance
-        return float(result.imprint.opening[0])
+            self._images = tuple(_to_uint8(image) for image in imprint.image)
+        self._settle(jaxlie.SE3(jnp.asarray(imprint.T_world_gripper.wxyz_xyz[0])))  # wrist compliance
+        return float(imprint.opening[0])
 
     def open_jaws(self) -> None:
-        """Let go: the gel shows no contact."""
+        """Let go: the gels show no contact."""
         with self._lock:
-            self._image = self._background
+            self._images = (self._background,) * self.fingers
+
+    def finger_image(self, finger: int = 0) -> np.ndarray:
+        """What finger ``finger``'s tactile camera sees now (0: the sensor jaw, 1: the opposite
+        jaw of a two-sensor scene): (H, W, 3) uint8 RGB, rectified."""
+        with self._lock:
+            return self._images[finger]
 
     @property
     def image(self) -> np.ndarray:
-        """What the tactile camera sees now: (H, W, 3) uint8 RGB, rectified."""
-        with self._lock:
-            return self._image
+        """What the sensor jaw's tactile camera sees now: (H, W, 3) uint8 RGB, rectified."""
+        return self.finger_image(0)
 
     @property
     def T_world_gripper(self) -> jaxlie.SE3:
@@ -164,12 +177,15 @@ class SimulatedCamera(Camera):
     Args:
         scene: the simulated world.
         fps: frame rate, frames per second; None returns a frame at once on every read.
+        finger: the finger whose gel it watches (1: the opposite jaw of a two-sensor scene).
     """
 
-    def __init__(self, scene: SimulatedScene, *, fps: float | None = 30.0):
+    def __init__(self, scene: SimulatedScene, *, fps: float | None = 30.0, finger: int = 0):
         if fps is not None and not fps > 0:
             raise ValueError(f"fps must be positive, got {fps}")
-        self.scene, self.fps = scene, fps
+        if not 0 <= finger < scene.fingers:
+            raise ValueError(f"the scene has {scene.fingers} finger(s) with a sensor; no finger {finger}")
+        self.scene, self.fps, self.finger = scene, fps, finger
         self._index = 0
         self._next_s = time.monotonic()
         self._closed = False
@@ -186,7 +202,7 @@ class SimulatedCamera(Camera):
             if delay > 0:
                 time.sleep(delay)
             self._next_s = max(self._next_s + 1.0 / self.fps, time.monotonic())
-        frame = Frame(image=self.scene.image, timestamp_s=time.monotonic(), index=self._index)
+        frame = Frame(image=self.scene.finger_image(self.finger), timestamp_s=time.monotonic(), index=self._index)
         self._index += 1
         return frame
 
@@ -246,16 +262,19 @@ class SimulatedCell:
     poses: UdpPoseReceiver
     """The robot's pose feed, received over UDP from ``publisher``."""
     publisher: PosePublisher
+    second_camera: SimulatedCamera | None = None
+    """The opposite finger's camera (``fingers=2``), else None."""
 
 
 @contextlib.contextmanager
 def simulated_cell(spec: SensorSpec, obj: TactileObject, *, transport: str = "tcp", fps: float | None = None,
-                   pose_rate_hz: float = 200.0, config: GraspConfig = GraspConfig(), seed: int = 0
-                   ) -> Iterator[SimulatedCell]:
-    """Start a simulated cell: scene, WSG-50 emulator and client, UDP pose feed, camera, robot.
+                   pose_rate_hz: float = 200.0, config: GraspConfig = GraspConfig(), seed: int = 0,
+                   fingers: int = 1) -> Iterator[SimulatedCell]:
+    """Start a simulated cell: scene, WSG-50 emulator and client, UDP pose feed, camera(s), robot.
 
     Args:
-        spec, obj, config, seed: the simulated world (see :class:`SimulatedScene`).
+        spec, obj, config, seed, fingers: the simulated world (see :class:`SimulatedScene`);
+            with ``fingers=2`` the cell has a ``second_camera`` on the opposite jaw.
         transport: how the gripper client reaches the emulator: ``"tcp"`` (``socket://``) or
             ``"pty"`` (a pseudo-terminal, as a USB serial port).
         fps: camera frame rate (None: a frame on every read).
@@ -267,7 +286,7 @@ def simulated_cell(spec: SensorSpec, obj: TactileObject, *, transport: str = "tc
     if transport not in ("tcp", "pty"):
         raise ValueError(f"transport must be 'tcp' or 'pty', got {transport!r}")
     with contextlib.ExitStack() as stack:
-        scene = SimulatedScene(spec, obj, config=config, seed=seed)
+        scene = SimulatedScene(spec, obj, config=config, seed=seed, fingers=fingers)
         emulator = stack.enter_context(WSG50Emulator(stroke_mm=config.max_opening_mm,
                                                      width_mm=config.max_opening_mm))
         url = emulator.serve_tcp() if transport == "tcp" else emulator.serve_pty()
@@ -277,6 +296,7 @@ def simulated_cell(spec: SensorSpec, obj: TactileObject, *, transport: str = "tc
         publisher = PosePublisher(scene, poses.address, rate_hz=pose_rate_hz)
         stack.callback(publisher.close)
         camera = stack.enter_context(SimulatedCamera(scene, fps=fps))
+        second_camera = stack.enter_context(SimulatedCamera(scene, fps=fps, finger=1)) if fingers == 2 else None
         robot = SimulatedRobot(scene, gripper, emulator)
         yield SimulatedCell(scene=scene, robot=robot, camera=camera, gripper=gripper, emulator=emulator,
-                            poses=poses, publisher=publisher)
+                            poses=poses, publisher=publisher, second_camera=second_camera)

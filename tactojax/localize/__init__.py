@@ -16,6 +16,7 @@ A typical session::
 """
 
 from tactojax.localize._active import ActiveSettings as ActiveSettings
+from tactojax.localize._active import belief_error as belief_error
 from tactojax.localize._active import GraspRanking as GraspRanking
 from tactojax.localize._active import next_grasp as next_grasp
 from tactojax.localize._active import propose_grasps as propose_grasps
@@ -74,6 +75,7 @@ from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
 __all__ = [
     "should_stop",
+    "belief_error",
     "propose_grasps",
     "predict_grasp",
     "next_grasp",

@@ -98,6 +98,15 @@ def should_stop(belief: PoseBelief, threshold: float = 0.95) -> Bool[Array, ""]:
     return belief.probability_within() >= threshold
 
 
+@jax.jit
+def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array, ""]:
+    """The paper's error of a belief whose object truly sits at ``T_world_object`` (evaluation,
+    e.g. on a simulated cell): the RMSE between all its fused touches' contact points placed by
+    its most likely pose and by the truth, up to the object's symmetry, mm."""
+    T_object_reference = T_world_object.inverse() @ belief.T_world_reference
+    return hypothesis_distances(belief, T_object_reference, symmetric=True)[jnp.argmax(belief.log_weights)]
+
+
 def _take(tree, index):
     return jax.tree.map(lambda x: x[index], tree)
 

@@ -4,6 +4,7 @@ Outside the numerical core. The rerun functions (``log_*``, ``new_recording``, `
 ``read_estimates``) import ``rerun`` only when called (optional extra ``viz``).
 """
 
+from tactojax.viz._active import active_episode_figure as active_episode_figure
 from tactojax.viz._belief import belief_figure as belief_figure
 from tactojax.viz._belief import new_grasps_figure as new_grasps_figure
 from tactojax.viz._figures import imprint_figure as imprint_figure
@@ -27,7 +28,7 @@ from tactojax.viz._save import save_png as save_png
 from tactojax.viz._shape import shape_examples_figure as shape_examples_figure
 
 __all__ = [
-    "belief_figure", "confusion_figure", "imprint_figure", "localization_histogram_figure", "map_size_figure", "new_grasps_figure", "save_png",
+    "active_episode_figure", "belief_figure", "confusion_figure", "imprint_figure", "localization_histogram_figure", "map_size_figure", "new_grasps_figure", "save_png",
     "shape_examples_figure", "stitched_points", "tactile_map_figure",
     "height_colors", "log_belief", "log_estimate", "log_live_estimate", "log_maps", "log_touch", "log_view", "new_recording",
     "open_recording", "read_estimates", "read_test_touches",

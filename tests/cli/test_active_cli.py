@@ -1,8 +1,10 @@
-"""``tactojax eval-active`` on a tiny case: one episode, two grasps, the cylinder's small map."""
+"""``tactojax eval-active`` on a tiny case: one episode, two grasps, the cylinder's small map; and
+``tactojax record --active`` (slow): one active episode on the simulated cell."""
 
 import json
 
 import numpy as np
+import pytest
 
 from tactojax.cli import main
 from tactojax.io import save_shape_model, save_tactile_map
@@ -31,3 +33,26 @@ def test_eval_active_runs_the_closed_loop(cylinder_map, lookup_model, tiny_encod
         stop = result["stop"][policy]
         assert 0.0 <= stop["stopped_share"] <= 1.0 and stop["threshold"] == 0.95
     assert (tmp_path / "active.png").stat().st_size > 0
+
+
+@pytest.mark.slow  # compiles a full-size live localizer (tens of seconds); tests/hardware/test_active.py runs the loop
+def test_record_runs_an_active_episode_on_the_simulated_cell(cylinder_map, lookup_model, tiny_encoder_path, tmp_path,
+                                                             capsys):
+    from tactojax.io import open_dataset
+
+    map_path = str(save_tactile_map(tmp_path / "cylinder.npz", cylinder_map))
+    model = str(save_shape_model(tmp_path / "lookup.msgpack", lookup_model))
+    report, recording = tmp_path / "episode.json", tmp_path / "recording"
+    assert main(["record", "--simulate", "cylinder", "--scale", "0.25", "--active", map_path, "--model", model,
+                 "--encoder", str(tiny_encoder_path), "--max-grasps", "2", "--candidates", "8", "--seed", "3",
+                 "--out", str(recording), "--json", str(report), "--figure", str(tmp_path / "episode.png")]) == 0
+    out = capsys.readouterr().out
+    assert "expected gain" in out and "recorded" in out
+    rows = json.loads(report.read_text())["grasps"]
+    fused = [row for row in rows if row["fused"]]
+    assert rows[0]["chosen"] == "first" and rows[-1]["grasp"] <= 2
+    assert all(row["chosen"] == "active" for row in rows if row["grasp"] == 2)
+    assert all(np.isfinite(row["error_mm"]) and 0.0 <= row["probability_within_2mm"] <= 1.0 for row in fused)
+    # One touch (the sensor finger's) of every fused grasp is on disk.
+    assert len(open_dataset(recording).read(["opening_mm"])["opening_mm"]) == len(fused) >= 1
+    assert (tmp_path / "episode.png").stat().st_size > 0
