@@ -94,13 +94,14 @@ def run(args) -> int:
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     calibrations = [stored_calibration(path, args.encoder) for path in args.maps]
     print("compiling the touch program ...", flush=True)
-    # Settled grasps update the belief in a worker thread: no camera frame waits for it.
-    localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
-                                                             live=LiveSettings(background_update=True))
-    print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
-          f"{'' if args.no_tracking else ' (tracking between frames)'}")
     source = camera_source(args.camera)
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
+    # From a live camera, settled grasps update the belief in a worker thread, so that no frame
+    # waits for it; a video file is read frame by frame, each update in its frame.
+    localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
+                                                             live=LiveSettings(background_update=not every_frame))
+    print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
+          f"{'' if args.no_tracking else ' (tracking between frames)'}")
     poses = open_pose_source(args.pose) if args.pose else None
     lookup = PoseLookup(poses, max_skew_s=args.max_skew_ms / 1e3) if poses is not None else None
     view, gripper, second_camera = None, None, None
