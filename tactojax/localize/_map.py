@@ -236,7 +236,7 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     if len(views) < 2:
         return views
     for name, value in (("mm_per_px", lambda v: v.mm_per_px), ("surface pitch", lambda v: v.surface.pitch_mm),
-                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.packed_heightmaps.shape[1:])):
+                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.heightmaps.shape[1:])):
         if len({value(v) for v in views}) > 1:
             raise ValueError(f"the maps differ in {name} ({[value(v) for v in views]}): they cannot share one shape")
     count = max(len(v) for v in views)
