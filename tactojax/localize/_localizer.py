@@ -12,8 +12,8 @@ object that stays put between them are fused by their sensor poses (the kinemati
 with the gripper.
 
 An update takes tens of milliseconds on a CPU, several camera frames. With
-``LiveSettings(background_update=True)`` (what ``tactojax localize-live`` and the live
-benchmark use) it runs in a worker thread: the frame that settles a grasp returns at once, the
+``LiveSettings(background_update=True)`` (what ``tactojax localize-live`` uses on a live
+camera, and the live benchmark) it runs in a worker thread: the frame that settles a grasp returns at once, the
 frames meanwhile report the belief as it stood (``LiveEstimate.pending``), and the first frame
 after the update has finished reports it (``updated``). The camera loop then never waits for
 the belief.
@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -298,10 +298,8 @@ class Localizer:
         # Strongly typed, as every updated belief is (a weak type would not match them).
         self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
         # The maps share one shape (shared_shapes): one compilation serves them all.
-        compiled_update = update.lower(self.views[0], self._empty[0], example_touch, pose).compile()
-        compiled_summarise = summarise.lower(self._empty[0]).compile()
-        self._update = (compiled_update,) * len(self.views)
-        self._summarise = (compiled_summarise,) * len(self.views)
+        self._update = update.lower(self.views[0], self._empty[0], example_touch, pose).compile()
+        self._summarise = summarise.lower(self._empty[0]).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
                                                            pose.wxyz_xyz).compile()
@@ -454,10 +452,10 @@ class Localizer:
                                       feature=self._encode(self._encoder, second_image), opening=opening),
                                 T_world_opposite))
         beliefs = list(beliefs)
-        for m, (view, update) in enumerate(zip(self.views, self._update)):
+        for m, view in enumerate(self.views):
             for touch, T_world_touch in touches:
-                beliefs[m] = update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch))
-        summaries = jax.device_get([summarise(b) for summarise, b in zip(self._summarise, beliefs)])
+                beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch))
+        summaries = jax.device_get([self._summarise(b) for b in beliefs])
         probabilities = object_probabilities([s[4] for s in summaries])
         if not probabilities.any():  # no map explains the touches
             return beliefs, None

@@ -224,7 +224,7 @@ class Tracker:
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
         frame = jax.jit(functools.partial(_track_frame, tracking=tracking, settings=icp))
         # The localizer's maps share one shape (shared_shapes): one compilation serves them all.
-        self._track = (frame.lower(self.localizer.views[0], touch, pose, pose).compile(),) * len(self.localizer.views)
+        self._track = frame.lower(self.localizer.views[0], touch, pose, pose).compile()
         self.compile_s = self.localizer.compile_s + time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self.relocalizations = 0
@@ -281,7 +281,7 @@ class Tracker:
         chosen, T_previous = self._previous
         T_before = self._before if self._before is not None else T_previous
         touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
-        tracked, matched, informative = jax.device_get(self._track[chosen](
+        tracked, matched, informative = jax.device_get(self._track(
             self.localizer.views[chosen], touch, jaxlie.SE3(T_previous), jaxlie.SE3(T_before)))
         lost = informative & ((self._unsupported >= self.tracking.max_unsupported_frames)
                               | (matched & (tracked.score > self.tracking.max_residual_mm)))
@@ -315,7 +315,7 @@ class Tracker:
         new = self.object_ids.index(estimate.object_id)
         T_belief = np.asarray(estimate.T_object_sensor.wxyz_xyz, np.float32)
         touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
-        fit, fit_matched, _ = jax.device_get(self._track[new](self.localizer.views[new], touch,
+        fit, fit_matched, _ = jax.device_get(self._track(self.localizer.views[new], touch,
                                                               jaxlie.SE3(T_belief), jaxlie.SE3(T_belief)))
         better = not matched or float(selection_cost(fit)) + self.tracking.degraded_mm < float(selection_cost(tracked))
         if not (fit_matched and better):
