@@ -273,8 +273,7 @@ def stage_by_stage(args, view, model, encoder, settings, records, opposite, shap
         return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=opening)
 
     episodes, grasps = shape
-    errors, probability = np.full(shape, np.nan), np.full(shape, np.nan)
-    seconds, skipped = [], 0
+    beliefs, seconds, skipped = {}, [], 0
     for e in range(episodes):
         belief = None
         for g in range(grasps):
@@ -294,8 +293,8 @@ def stage_by_stage(args, view, model, encoder, settings, records, opposite, shap
                 skipped += 1
                 continue
             seconds.append(time.perf_counter() - start)
-            errors[e, g] = truth_of(t, np.asarray(belief.sensor_pose(T_world_sensor).wxyz_xyz))
-            probability[e, g] = float(belief.probability_within())
+            beliefs[e, g] = belief
+    errors, probability = grasp_errors(beliefs, records, shape, truth_of)
     return {"ms_per_grasp": {"median": 1e3 * float(np.median(seconds[1:])),
                              "p95": 1e3 * float(np.percentile(seconds[1:], 95))},
             "first_call_s": seconds[0], "skipped": skipped, "per_grasp": per_grasp(errors, probability)}
