@@ -1,8 +1,8 @@
 """Speed of the next-grasp ranking (issue 28: 64 candidates in at most 100 ms on 2 CPU cores).
 
 The belief after each episode's first two-finger grasp of a new-grasps test set proposes
-``--candidates`` grasps (:func:`tactojax.localize.propose_grasps`) and ranks them
-(:func:`tactojax.localize.next_grasp`); both are timed, compilation apart, interleaved call by
+``--candidates`` grasps (:func:`tactojax.localize.active.propose_grasps`) and ranks them
+(:func:`tactojax.localize.active.next_grasp`); both are timed, compilation apart, interleaved call by
 call with the reference in the same process: one belief update (the touch the ranking is for,
 :func:`tactojax.localize.update_belief`), so that the ratio means something on a busy machine.
 
@@ -27,8 +27,9 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
                          new_grasps_set, seconds_of, write_json)
 
 from tactojax.io import resolve_encoder, resolve_shape_model
-from tactojax.localize import (ActiveSettings, BeliefSettings, LocalizationMap, Touch, empty_belief,
-                               load_test_episodes, map_marching_grid, next_grasp, propose_grasps, update_belief)
+from tactojax.localize import BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
+from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps
+from tactojax.localize.evaluation import load_test_episodes
 
 
 def parse_args() -> argparse.Namespace:

@@ -3,7 +3,7 @@
 The belief scores every hypothesis by how its touches fit the map's signed-distance surface
 (built from the map's *predicted* heightmaps), using each touch's *predicted* heightmap and
 contact mask. This script swaps in exact data one part at a time and runs the same belief
-(:func:`tactojax.localize.evaluate_new_grasps`) on the same episodes:
+(:func:`tactojax.localize.evaluation.evaluate_new_grasps`) on the same episodes:
 
 - **surface**: the map's, or the object's true signed distance (the simulator's solid) on the
   same grid, known where it is within the map's reach of the surface;
@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import LocalizationMap, evaluate_new_grasps, load_test_episodes
+from tactojax.localize import LocalizationMap
+from tactojax.localize.evaluation import evaluate_new_grasps, load_test_episodes
 from tactojax.objects import get_object
 
 try:  # run as ``python benchmarks/belief_limits.py`` or as a module

@@ -6,7 +6,7 @@ where it stands, or the opposite finger of the same grasp). Issue 16 asks for at
 a first touch and 20 ms for each further touch on 2 CPU cores. This script replays the episodes
 of a new-grasps test set touch by touch through one jitted update (fixed shapes: it compiles
 once) and times every call, interleaved call by call with CTI-ICP-5
-(:func:`tactojax.localize.localize_baseline`, the paper's method) on the same touch, so that the
+(:func:`tactojax.localize.baselines.localize_baseline`, the paper's method) on the same touch, so that the
 ratio means something on a busy machine.
 
 Reported: compile times, the median and 90th percentile of first and further touches, the
@@ -36,8 +36,9 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
                          new_grasps_set, seconds_of, write_json)
 
 from tactojax.io import resolve_encoder, resolve_shape_model
-from tactojax.localize import (BeliefSettings, LocalizationMap, Touch, empty_belief, load_test_episodes,
-                               localize_baseline, update_belief)
+from tactojax.localize import BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
+from tactojax.localize.baselines import localize_baseline
+from tactojax.localize.evaluation import load_test_episodes
 
 
 def parse_args() -> argparse.Namespace:

@@ -34,7 +34,7 @@ from tactojax import kernel_count
 from tactojax.cli import main as cli_main
 from tactojax.features import apply_encoder, encode_images
 from tactojax.io import load_tactile_map, open_dataset, resolve_encoder, resolve_shape_model
-from tactojax.localize import evaluate_localization
+from tactojax.localize.evaluation import evaluate_localization
 from tactojax.objects import CATALOG, get_object
 
 try:  # run as ``python benchmarks/features.py`` or as a module

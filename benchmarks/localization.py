@@ -36,8 +36,9 @@ from tactojax import CompilationCounter
 from tactojax.features import encode_image
 from tactojax.io import resolve_encoder, resolve_shape_model
 # The stages of the baseline, timed apart and handed to Open3D:
-from tactojax.localize import (IcpSettings, LocalizationMap, closest_imprints, contact_points, estimate_pose,
-                               localize_baseline, map_touch)
+from tactojax.localize import LocalizationMap
+from tactojax.localize.baselines import IcpSettings, closest_imprints, contact_points, estimate_pose, localize_baseline
+from tactojax.localize.evaluation import map_touch
 from tactojax.shape import predict
 
 try:  # run as ``python benchmarks/localization.py`` or as a module

@@ -34,8 +34,9 @@ from tqdm.auto import tqdm
 
 from tactojax.io import resolve_encoder, resolve_shape_model
 # Retrieval and the oracle's nearest imprints, looked at apart:
-from tactojax.localize import (LocalizationMap, closest_imprints, cloud_moments, evaluate_localization, map_touch,
-                               moment_rmse, oracle_imprints)
+from tactojax.localize import LocalizationMap
+from tactojax.localize.baselines import closest_imprints
+from tactojax.localize.evaluation import cloud_moments, evaluate_localization, map_touch, moment_rmse, oracle_imprints
 
 try:  # run as ``python benchmarks/localization_ceiling.py`` or as a module
     from benchmarks._common import add_common_arguments, add_map_arguments, format_table, load_maps, machine_info, write_json

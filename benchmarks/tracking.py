@@ -46,8 +46,8 @@ from tactojax import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.io import open_dataset, read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import (LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings,
-                               load_test_episodes, localize)
+from tactojax.localize import LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize
+from tactojax.localize.evaluation import load_test_episodes
 from tactojax.mapping import observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim

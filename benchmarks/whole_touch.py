@@ -40,9 +40,17 @@ from tactojax import CompilationCounter, kernel_count
 from tactojax.features import apply_encoder
 from tactojax.geometry import sensor_pose
 from tactojax.io import open_dataset, resolve_encoder, resolve_shape_model
-from tactojax.localize import (MAX_OPENING_DIFFERENCE_MM, POINTS_PER_TOUCH, BeliefSettings, IcpSettings,
-                               LocalizationMap, Localizer, MapLibrary, Touch, empty_belief, identify,
-                               localize_baseline, update_belief)
+from tactojax.localize import (
+    BeliefSettings,
+    LocalizationMap,
+    Localizer,
+    MapLibrary,
+    Touch,
+    empty_belief,
+    identify,
+    update_belief,
+)
+from tactojax.localize.baselines import MAX_OPENING_DIFFERENCE_MM, POINTS_PER_TOUCH, IcpSettings, localize_baseline
 from tactojax.mapping import observed_contact
 from tactojax.shape import coordinate_bias, predict
 from tactojax.simulate import MappingProtocol

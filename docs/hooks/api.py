@@ -1,4 +1,5 @@
-"""MkDocs hook: one API reference page per ``tactojax`` subpackage, and a check that it is complete.
+"""MkDocs hook: one API reference page per ``tactojax`` subpackage (and public submodule), and a
+check that it is complete.
 
 Each page is generated at build time (nothing to keep in step by hand): ``::: tactojax.NAME``
 with its members listed explicitly, taken from the package's ``__all__`` or, for a package
@@ -41,7 +42,8 @@ LAYERS = ("storage", "geometry", "sensor", "objects", "simulate", "shape", "mapp
 
 
 def packages() -> dict[str, list[str]]:
-    """``{"tactojax.NAME": [public names]}`` for the top level and every public subpackage, in layer order."""
+    """``{"tactojax.NAME": [public names]}`` for the top level, every public subpackage (in layer
+    order) and each one's public submodules."""
     found = {"tactojax": public_names(PACKAGE / "__init__.py")}
     order = {name: rank for rank, name in enumerate(LAYERS)}
     inits = sorted(PACKAGE.glob("*/__init__.py"), key=lambda init: (order.get(init.parent.name, len(LAYERS)),
@@ -49,6 +51,8 @@ def packages() -> dict[str, list[str]]:
     for init in inits:
         if not init.parent.name.startswith("_"):
             found[f"tactojax.{init.parent.name}"] = public_names(init)
+            for module in sorted(init.parent.glob("[!_]*.py")):  # public submodules (tactojax.localize.active)
+                found[f"tactojax.{init.parent.name}.{module.stem}"] = public_names(module)
     return found
 
 
@@ -59,7 +63,8 @@ def page(module: str, names: list[str]) -> str:
 
 
 def api_uri(module: str) -> str:
-    """Where a package's API page goes: ``api/index.md`` for ``tactojax``, else ``api/NAME.md``."""
+    """Where a package's API page goes: ``api/index.md`` for ``tactojax``, else ``api/NAME.md``
+    (``api/NAME.SUB.md`` for a public submodule)."""
     return "api/index.md" if module == "tactojax" else f"api/{module.split('.', 1)[1]}.md"
 
 

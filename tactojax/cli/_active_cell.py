@@ -4,7 +4,7 @@ The object is placed at a turn, the first grasp is the new-grasps protocol's (tr
 until one is felt), and then :func:`tactojax.hardware.active_episode` chooses every grasp
 through the cell's robot, two tactile cameras and pose feed, while the live localizer fuses
 them. The simulator knows where the object is: after each grasp the belief's error is measured
-against it (:func:`tactojax.localize.belief_error`).
+against it (:func:`tactojax.localize.evaluation.belief_error`).
 """
 
 from __future__ import annotations
@@ -42,7 +42,9 @@ def run_simulated_active(spec, obj, maps, model, encoder, *, calibrations=None, 
     import numpy as np
 
     from tactojax.hardware import active_episode, simulated_cell
-    from tactojax.localize import ActiveSettings, BeliefSettings, Localizer, belief_error
+    from tactojax.localize import BeliefSettings, Localizer
+    from tactojax.localize.active import ActiveSettings
+    from tactojax.localize.evaluation import belief_error
     from tactojax.simulate import GraspsProtocol, grasps_plan
 
     if max_grasps < 1 or candidates < 1 or not 0.0 < stop <= 1.0:

@@ -32,7 +32,7 @@ def add_parser(commands) -> None:
 def _episodes_of(object_id: str, directories, model, encoder):
     """The calibration episodes of ``object_id`` from the first directory that holds it."""
     from tactojax.io import read_test_grasps
-    from tactojax.localize import load_test_episodes
+    from tactojax.localize.evaluation import load_test_episodes
 
     for directory in directories:
         try:
@@ -47,7 +47,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder
     from tactojax.io import DEFAULT_ENCODER, resolve_shape_model, save_tactile_map, tactile_map_metadata
-    from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration, record_beliefs
+    from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
+    from tactojax.localize.evaluation import record_beliefs
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     if args.rounds < 1:

@@ -181,7 +181,7 @@ def _localization(args, maps, out: Path) -> dict:
     import numpy as np
 
     from tactojax.cli._maps import histogram_panel, object_symmetries
-    from tactojax.localize import evaluate_localization
+    from tactojax.localize.evaluation import evaluate_localization
     from tactojax.localize._baselines import parse_method
     from tactojax.viz import localization_histogram_figure, save_png
 
@@ -209,7 +209,7 @@ def _localization(args, maps, out: Path) -> dict:
 
 def _identification(maps, out: Path) -> dict:
     """Section VII: which object is in the hand, from one held-out touch."""
-    from tactojax.localize import evaluate_identification
+    from tactojax.localize.evaluation import evaluate_identification
     from tactojax.viz import confusion_figure, save_png
 
     print("\n4/6 identification: every touch held out of its own map")
@@ -226,7 +226,8 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     """Beyond the paper: the pose belief on new grasps, fused over the grasps of each episode."""
     import numpy as np
 
-    from tactojax.localize import LocalizationMap, Touch, load_test_episodes, localize
+    from tactojax.localize import LocalizationMap, Touch, localize
+    from tactojax.localize.evaluation import load_test_episodes
     from tactojax.objects import get_object
     from tactojax.simulate import GraspsProtocol, simulate_to_dataset
     from tactojax.viz import belief_figure, save_png

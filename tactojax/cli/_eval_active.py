@@ -47,7 +47,8 @@ def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder, object_symmetries, stored_calibration
     from tactojax.features import encode_images
     from tactojax.io import resolve_shape_model
-    from tactojax.localize import ActiveSettings, LocalizationMap
+    from tactojax.localize import LocalizationMap
+    from tactojax.localize.active import ActiveSettings
     from tactojax.localize._active_episodes import POLICIES, run_active_episodes
     from tactojax.localize._localizer import observe as observe_frame
     from tactojax.localize._new_grasps import calibration

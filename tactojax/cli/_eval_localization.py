@@ -53,7 +53,7 @@ def run(args) -> int:
     import jax
     import numpy as np
 
-    from tactojax.localize import evaluate_localization, map_size_study
+    from tactojax.localize.evaluation import evaluate_localization, map_size_study
     from tactojax.localize._baselines import parse_method
     from tactojax.localize._new_grasps import calibration
     from tactojax.viz import localization_histogram_figure, map_size_figure, save_png

@@ -11,8 +11,9 @@ def run_new_grasps(args) -> int:
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
     from tactojax.io import resolve_shape_model
-    from tactojax.localize import load_test_episodes
-    from tactojax.localize import LocalizationMap, evaluate_new_grasps
+    from tactojax.localize.evaluation import load_test_episodes
+    from tactojax.localize import LocalizationMap
+    from tactojax.localize.evaluation import evaluate_new_grasps
     from tactojax.localize._baselines import parse_method
     from tactojax.localize._new_grasps import calibration
     from tactojax.viz import new_grasps_figure, save_png

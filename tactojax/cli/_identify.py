@@ -28,7 +28,7 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from tactojax.localize import evaluate_identification
+    from tactojax.localize.evaluation import evaluate_identification
     from tactojax.viz import confusion_figure, save_png
 
     if len(args.maps) < 2:
@@ -57,8 +57,9 @@ def run_new_grasps(args) -> int:
 
     from tactojax.cli._maps import localization_views, maps_and_query_encoder
     from tactojax.io import read_test_grasps, resolve_shape_model
-    from tactojax.localize import load_test_episodes
-    from tactojax.localize import calibration_to_json, identify_episodes
+    from tactojax.localize.evaluation import load_test_episodes
+    from tactojax.localize import calibration_to_json
+    from tactojax.localize.evaluation import identify_episodes
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     names = [m.object_id for m in maps]

@@ -1,4 +1,4 @@
-"""Geometry: pixel grids, heightmap -> points/normals, gripper kinematics (pure JAX)."""
+"""Geometry: pixel grids, heightmap -> points/normals, gripper kinematics, indexing batched poses (pure JAX)."""
 
 from tactojax.geometry._heightmap import contact_points as contact_points
 from tactojax.geometry._heightmap import heightmap_gradient as heightmap_gradient
@@ -9,6 +9,7 @@ from tactojax.geometry._kinematics import gripper_pose as gripper_pose
 from tactojax.geometry._kinematics import opposite_sensor_pose as opposite_sensor_pose
 from tactojax.geometry._kinematics import sensor_pose as sensor_pose
 from tactojax.geometry._pixels import pixel_grid as pixel_grid
+from tactojax.geometry._trees import take as take
 
 __all__ = [
     "T_gripper_sensor",
@@ -20,4 +21,5 @@ __all__ = [
     "opposite_sensor_pose",
     "pixel_grid",
     "sensor_pose",
+    "take",
 ]

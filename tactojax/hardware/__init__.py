@@ -14,7 +14,7 @@ code runs against the simulator:
   retreat), :class:`SimulatedRobot` on a :class:`SimulatedScene`, :func:`simulated_cell` for the
   whole simulated cell;
 - active touch: :func:`active_episode` lets the live localizer choose every next grasp
-  (:func:`~tactojax.localize.next_grasp`) until it is sure;
+  (:func:`~tactojax.localize.active.next_grasp`) until it is sure;
 - recording: :class:`Recorder`, :func:`record_protocol` (the mapping protocol on any robot),
   :func:`record_grasps` (passive);
 - live loop: :func:`live_estimates` runs a :class:`~tactojax.localize.Localizer` on frames;

@@ -8,10 +8,10 @@ with tactile cameras and a pose feed (the simulated cell's or a real one's):
    taken after they closed and paired with the opening and the gripper pose at its time, and
    the live :class:`~tactojax.localize.Localizer` fuses the grasp into its beliefs
    (:meth:`~tactojax.localize.Localizer.fuse`);
-2. from the belief of the most probable map, :func:`~tactojax.localize.propose_grasps` draws
-   candidates where the map says the jaws close, :func:`~tactojax.localize.next_grasp` ranks
+2. from the belief of the most probable map, :func:`~tactojax.localize.active.propose_grasps` draws
+   candidates where the map says the jaws close, :func:`~tactojax.localize.active.next_grasp` ranks
    them by expected gain in P(within 2 mm), and the robot executes the best;
-3. until :func:`~tactojax.localize.should_stop` (P(within 2 mm) reached the threshold) or
+3. until :func:`~tactojax.localize.active.should_stop` (P(within 2 mm) reached the threshold) or
    ``max_grasps`` grasps.
 
 First grasps that miss are tried in turn and not charged (the object's pose is not known yet:
@@ -32,13 +32,14 @@ import jax
 import jaxlie
 import numpy as np
 
+from tactojax.geometry import take
 from tactojax.hardware._camera import Camera
 from tactojax.hardware._pose_source import PoseSource
 from tactojax.hardware._recorder import MAX_SKEW_S, Recorder, capture_touch, frame_after
 from tactojax.hardware._robot import APPROACH_MM, Robot, execute_grasp
 from tactojax.hardware._sync import SynchronisedTouch
-from tactojax.localize import (ActiveSettings, LiveEstimate, Localizer, PoseBelief, map_marching_grid, next_grasp,
-                               propose_grasps, should_stop)
+from tactojax.localize import LiveEstimate, Localizer, PoseBelief
+from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps, should_stop
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ def active_episode(
         if localizer.grasps == 0:
             if tried == len(first_grasps.wxyz_xyz):
                 return
-            chosen, T_world_gripper = "first", _take(first_grasps, tried)
+            chosen, T_world_gripper = "first", take(first_grasps, tried)
             tried += 1
         else:
             chosen, start = "active", time.perf_counter()
@@ -148,7 +149,7 @@ def active_episode(
             proposals, _ = propose_grasps(jax.random.fold_in(key, charged), view, grid, belief, candidates, settings)
             ranking = next_grasp(view, grid, belief, proposals, settings)
             best = int(ranking.order[0])
-            T_world_gripper, gain = _take(proposals, best), float(ranking.gain[best])
+            T_world_gripper, gain = take(proposals, best), float(ranking.gain[best])
             choice_s = time.perf_counter() - start
         executed = execute_grasp(robot, T_world_gripper, while_closed=hold, approach_mm=approach_mm)
         before, held = localizer.grasps, None
@@ -176,5 +177,5 @@ def _chosen_map(localizer: Localizer, estimate: LiveEstimate | None) -> int:
     return localizer.object_ids.index(estimate.object_id)
 
 
-def _take(tree, index):
+def take(tree, index):
     return jax.tree.map(lambda x: x[index], tree)

@@ -6,7 +6,7 @@ stack plus a :class:`~tactojax.hardware.WSG50` (or any gripper);
 :class:`~tactojax.hardware.SimulatedRobot` implements it on the simulator, so the same
 recording code (:func:`~tactojax.hardware.record_protocol`) runs against both.
 
-:func:`execute_grasp` runs one chosen grasp (e.g. :func:`~tactojax.localize.next_grasp`'s) on
+:func:`execute_grasp` runs one chosen grasp (e.g. :func:`~tactojax.localize.active.next_grasp`'s) on
 any robot through those three calls: approach, grasp, release, retreat.
 """
 
@@ -66,7 +66,7 @@ def execute_grasp(robot: Robot, T_world_gripper: jaxlie.SE3, *,
     Args:
         robot: any :class:`Robot`.
         T_world_gripper: the commanded grasp pose (fully open), in the robot's world frame, mm
-            (a candidate of :func:`~tactojax.localize.propose_grasps`).
+            (a candidate of :func:`~tactojax.localize.active.propose_grasps`).
         while_closed: called with the opening (mm) while the jaws hold the object.
         approach_mm: approach and retreat distance along the gripper's approach axis, mm.
 

@@ -6,8 +6,7 @@ packs, torch weights, checkpoints, test sets as arrays) live in :mod:`tactojax.s
 re-exported. This layer sits above the stages: no stage imports it (see ``tactojax.storage``).
 """
 
-import warnings as _warnings
-
+from tactojax._moved import moved_names
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import DEFAULT_ENCODER as DEFAULT_ENCODER
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
@@ -66,22 +65,14 @@ from tactojax.storage import UnsafeCheckpointError as UnsafeCheckpointError
 
 _MOVED = {
     "dataset_metadata": "tactojax.simulate",
-    "load_test_episodes": "tactojax.localize",
+    "load_test_episodes": "tactojax.localize.evaluation",
     "sensor_metadata": "tactojax.simulate",
     "simulate_to_dataset": "tactojax.simulate",
 }
 """Names that moved to their stage: ``tactojax.io.NAME`` still works, with a DeprecationWarning."""
 
 
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-
-        _warnings.warn(f"tactojax.io.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next release",
-                       DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'tactojax.io' has no attribute {name!r}")
-
+__getattr__ = moved_names(__name__, _MOVED)
 
 __all__ = [
     "bundled_encoders",

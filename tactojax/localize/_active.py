@@ -2,7 +2,7 @@
 
 Beyond the paper (issue 28; Hebert et al., ICRA 2013, "the next best touch"). For every
 candidate grasp and each of the belief's ``hypotheses`` most likely poses *h*, the grasp's
-touch is predicted from the map alone (:func:`~tactojax.localize.predict_grasp`). Were *h* the
+touch is predicted from the map alone (:func:`~tactojax.localize.active.predict_grasp`). Were *h* the
 truth, that touch would reweigh every hypothesis *h'* by the belief's own likelihood (the
 geometric likelihood of its contact and no-contact points against the map's surface, at the
 sensor pose the jaws report, with the belief's calibrated temperature and fusion exponent; the
@@ -30,6 +30,7 @@ import jaxlie
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from tactojax.geometry import take
 from tactojax.localize._belief import WITHIN_MM, PoseBelief, hypothesis_distances
 from tactojax.localize._likelihood import LikelihoodSettings, log_likelihood
 from tactojax.localize._map import LocalizationMap
@@ -107,10 +108,6 @@ def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array,
     return hypothesis_distances(belief, T_object_reference, symmetric=True)[jnp.argmax(belief.log_weights)]
 
 
-def _take(tree, index):
-    return jax.tree.map(lambda x: x[index], tree)
-
-
 def leading_hypotheses(belief: PoseBelief, count: int) -> tuple[jaxlie.SE3, Float[Array, "M"], Float[Array, "M M"]]:
     """The ``count`` most likely hypotheses as object poses in the world (mm), their
     renormalised probabilities, and their (M, M) symmetry-aware distances (the touches' cloud
@@ -118,7 +115,7 @@ def leading_hypotheses(belief: PoseBelief, count: int) -> tuple[jaxlie.SE3, Floa
     log_weights, index = jax.lax.top_k(belief.log_weights, count)
     weights = jnp.where(jnp.isfinite(log_weights), jnp.exp(log_weights - jnp.max(log_weights)), 0.0)
     weights = weights / jnp.maximum(jnp.sum(weights), 1e-30)
-    T_object_reference = _take(belief.T_object_reference, index)
+    T_object_reference = take(belief.T_object_reference, index)
     T_world_object = belief.T_world_reference @ T_object_reference.inverse()
     probe = belief.replace(T_object_reference=T_object_reference)
     distance = jax.vmap(lambda T: hypothesis_distances(probe, T, symmetric=True))(T_object_reference)
@@ -183,7 +180,7 @@ def next_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
 
     Args:
         view: the object's map (its surface is what every touch is predicted from).
-        grid: the map's :class:`~tactojax.localize.MarchingGrid` (:func:`~tactojax.localize.map_marching_grid`).
+        grid: the map's :class:`~tactojax.localize.active.MarchingGrid` (:func:`~tactojax.localize.active.map_marching_grid`).
         belief: the belief so far (at least one touch).
         T_world_gripper: (C,) candidate gripper poses, commanded fully open, in the belief's
             world (robot) frame, mm.
@@ -231,7 +228,7 @@ def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid,
     T_world_object, weights, _ = leading_hypotheses(belief, settings.hypotheses)
     mode_key, turn_key, yaw_key, u_key, v_key = jax.random.split(key, 5)
     mode = jax.random.choice(mode_key, settings.hypotheses, (draws,), p=weights)
-    x_axis = jax.vmap(lambda T: T.rotation().as_matrix()[:, 0])(_take(T_world_object, mode))
+    x_axis = jax.vmap(lambda T: T.rotation().as_matrix()[:, 0])(take(T_world_object, mode))
     turn = jnp.arctan2(x_axis[:, 1], x_axis[:, 0]) + 0.5 * jnp.pi * jax.random.randint(turn_key, (draws,), 0, 4)
     yaw = turn + jnp.deg2rad(settings.yaw_range_deg) * jax.random.uniform(yaw_key, (draws,), minval=-1.0, maxval=1.0)
 
@@ -244,10 +241,10 @@ def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid,
         centre = centre.at[2].set(jnp.min(z) + v_draw * (jnp.max(z) - jnp.min(z)))
         return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rotation), centre)
 
-    T_drawn = _take(T_world_object, mode)
+    T_drawn = take(T_world_object, mode)
     poses = jax.vmap(pose)(T_drawn, yaw, jax.random.uniform(u_key, (draws,)), jax.random.uniform(v_key, (draws,)))
     closes = jax.vmap(lambda T_object, T: predict_grasp(grid, view.surface, T_object, T, gel_size_mm(view),
                                                         settings.prediction, fingers=settings.fingers).valid)(
         T_drawn, poses)
     _, keep = jax.lax.top_k(closes.astype(jnp.float32) + jnp.linspace(0.5, 0.0, draws), count)
-    return _take(poses, keep), closes[keep]
+    return take(poses, keep), closes[keep]

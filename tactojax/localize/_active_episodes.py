@@ -10,7 +10,7 @@ features by the encoder, as a robot would). A chosen grasp that misses or collid
 Policies:
 
 - ``active``: the best of ``candidates`` proposed grasps by expected gain
-  (:func:`~tactojax.localize.next_grasp`);
+  (:func:`~tactojax.localize.active.next_grasp`);
 - ``largest-contact``: of the same proposals, the one with the largest predicted contact at
   the belief's most likely pose;
 - ``random``: the protocol's next grasp that closes on the object (the new-grasps test sets'
@@ -34,7 +34,7 @@ import jaxlie
 import numpy as np
 from tqdm.auto import tqdm
 
-from tactojax.geometry import heightmap_to_points
+from tactojax.geometry import heightmap_to_points, take
 from tactojax.localize._active import ActiveSettings, next_grasp, propose_grasps
 from tactojax.localize._belief import BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import cloud_moments
@@ -126,7 +126,7 @@ def run_active_episodes(
             belief = empty_belief(view, belief_settings)
             for k in range(max_grasps):
                 if k == 0 or policy == "random":
-                    grasp = _take(executed.grasps, closing[k]) if k < len(closing) else None
+                    grasp = take(executed.grasps, closing[k]) if k < len(closing) else None
                 else:
                     T_world_gripper = _choose(jax.random.fold_in(policy_key, episode * max_grasps + k), view, grid,
                                               belief, policy, candidates, settings, out.ranking_s)
@@ -199,14 +199,10 @@ def _protocol_grasps(protocol_key, noise_key, spec, obj, protocol, episode, want
                             float(np.rad2deg(plan.turn_rad[0]))), closing)
 
 
-def _take(tree, index):
-    return jax.tree.map(lambda x: x[index], tree)
-
-
 def _execute(key, spec, obj, T_world_object, T_world_gripper):
     """One grasp simulated at the object's true pose."""
     one = lambda T: jax.tree.map(lambda x: x[None], T)  # noqa: E731
-    return _take(simulate_two_sensor_grasps(key, spec, obj, T_world_object, one(T_world_gripper)), 0)
+    return take(simulate_two_sensor_grasps(key, spec, obj, T_world_object, one(T_world_gripper)), 0)
 
 
 def _choose(key, view, grid, belief, policy, candidates, settings, ranking_s) -> jaxlie.SE3:
@@ -219,4 +215,4 @@ def _choose(key, view, grid, belief, policy, candidates, settings, ranking_s) ->
         best = int(ranking.order[0])
     else:  # largest-contact
         best = int(np.argmax(np.where(np.asarray(closes), np.asarray(ranking.contact_area), -1.0)))
-    return _take(proposals, best)
+    return take(proposals, best)

@@ -22,6 +22,7 @@ import jaxlie
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from tactojax.geometry import take
 from tactojax.localize._icp import IcpSettings, fit_quality, icp
 from tactojax.localize._map import LocalizationMap, Touch, canonical_touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
@@ -67,12 +68,8 @@ def random_estimate(key: PRNGKeyArray, view: LocalizationMap, exclude) -> PoseEs
     index = jnp.arange(len(view))
     eligible = view.imprint_valid & (index != exclude)
     choice = jax.random.categorical(key, jnp.where(eligible, 0.0, -jnp.inf))
-    estimate = PoseEstimate.failed(_take(view.T_object_sensor, choice), choice)
+    estimate = PoseEstimate.failed(take(view.T_object_sensor, choice), choice)
     return estimate.replace(converged=jnp.any(eligible))
-
-
-def _take(tree, index):
-    return jax.tree.map(lambda x: x[index], tree)
 
 
 def estimate_pose(
@@ -101,7 +98,7 @@ def estimate_pose(
     method = parse_method(method)
     any_valid = indices_valid[0]
     first = indices[0]
-    T_first = _take(view.T_object_sensor, first)
+    T_first = take(view.T_object_sensor, first)
     if method.kind == "cti":
         score, overlap, _ = fit_quality(view, indices[:1], indices_valid[:1], points, points_valid,
                                         T_first, settings)

@@ -40,6 +40,7 @@ import jaxlie
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax.geometry import take
 from tactojax.localize._candidates import CandidateGrid
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._evaluate import cloud_moments, moment_rmse
@@ -141,7 +142,7 @@ class PoseBelief:
     log_evidence: Float[Array, ""]
     """log of the summed (unnormalised) likelihoods of the hypotheses: how well this map
     explains the touches (-inf before any). Comparable between maps whose beliefs share one
-    calibration: P(object) is their softmax (:func:`~tactojax.localize.identify_episodes`)."""
+    calibration: P(object) is their softmax (:func:`~tactojax.localize.evaluation.identify_episodes`)."""
 
     @property
     def probabilities(self) -> Float[Array, "M"]:
@@ -151,7 +152,7 @@ class PoseBelief:
     @property
     def best(self) -> jaxlie.SE3:
         """The most likely pose of the reference sensor."""
-        return _take(self.T_object_reference, jnp.argmax(self.log_weights))
+        return take(self.T_object_reference, jnp.argmax(self.log_weights))
 
     @property
     def T_world_object(self) -> jaxlie.SE3:
@@ -165,7 +166,7 @@ class PoseBelief:
 
     def touch_pose(self, touch: int | Int[Array, ""] = 0) -> jaxlie.SE3:
         """The most likely pose of remembered touch ``touch``'s sensor in the object frame."""
-        return self.best @ _take(self.T_reference_touch, touch)
+        return self.best @ take(self.T_reference_touch, touch)
 
     @property
     def touches(self) -> Int[Array, ""]:
@@ -184,7 +185,7 @@ class PoseBelief:
         hypothesis within ``separation_mm`` of it. Returns (M,) the mode (a hypothesis index)
         of every hypothesis and (M,) the probability of each mode at its own index (0 elsewhere)."""
         order = jnp.argsort(-self.log_weights)
-        poses = _take(self.T_object_reference, order)
+        poses = take(self.T_object_reference, order)
         distance = jax.vmap(lambda T: hypothesis_distances(self, T, symmetric=True))(poses)[:, order]  # sorted
         near = (distance <= separation_mm) & jnp.isfinite(self.log_weights[order])[None, :]
         # Each hypothesis joins the first (most likely) one near it.
@@ -251,10 +252,6 @@ def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSetting
                       T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries, calibration=view.calibration, log_evidence=jnp.float32(-jnp.inf))
 
 
-def _take(tree, index):
-    return jax.tree.map(lambda x: x[index], tree)
-
-
 def _unit(feature: Float[Array, "F"]) -> Float[Array, "F"]:
     return feature / jnp.maximum(jnp.linalg.norm(feature), 1e-12)
 
@@ -267,7 +264,7 @@ def remember(belief: PoseBelief, evidence: TouchEvidence, feature: Float[Array, 
     # When full, shift slots 2.. down by one (slot 0 stays the reference) and write the last.
     order = jnp.where(full, jnp.concatenate([jnp.array([0]), jnp.arange(2, slots + 1) % slots]), jnp.arange(slots))
     buffers = (belief.evidence, belief.features, belief.T_reference_touch.wxyz_xyz, belief.touch_valid)
-    evidence_buffer, features, poses, valid = _take(buffers, order)
+    evidence_buffer, features, poses, valid = take(buffers, order)
     slot = jnp.where(full, slots - 1, jnp.argmin(belief.touch_valid))
     put = lambda old, new: old.at[slot].set(new)  # noqa: E731
     return belief.replace(evidence=jax.tree.map(put, evidence_buffer, evidence), features=put(features, _unit(feature)),
@@ -347,20 +344,20 @@ def candidates(view: LocalizationMap, belief: PoseBelief, evidence: TouchEvidenc
         return jnp.sum(jnp.where(belief.touch_valid, per_touch, 0.0))
 
     def screen(source, T_source_sensor):
-        T = align_depth(surface, _take(view.T_object_sensor, source) @ T_source_sensor, few, iterations=1)
+        T = align_depth(surface, take(view.T_object_sensor, source) @ T_source_sensor, few, iterations=1)
         return joint(T @ T_reference_touch.inverse(), few_of_every_touch)
 
     screening = jax.vmap(lambda source: jax.vmap(lambda T: screen(source, T))(offsets))(sources)  # (sources, S)
     screening = jnp.where(sources_valid[:, None], screening, -jnp.inf).reshape(-1)
     kept_scores, kept = jax.lax.top_k(screening, min(settings.screened, screening.shape[0]))
     source = sources[kept // per_source]
-    aligned = jax.vmap(lambda s, T: align_depth(surface, _take(view.T_object_sensor, s) @ T, evidence))(
-        source, _take(offsets, kept % per_source))
+    aligned = jax.vmap(lambda s, T: align_depth(surface, take(view.T_object_sensor, s) @ T, evidence))(
+        source, take(offsets, kept % per_source))
     T_object_reference = aligned @ T_reference_touch.inverse()
     scores = jax.vmap(lambda T: joint(T, belief.evidence))(T_object_reference)
     scores = jnp.where(jnp.isfinite(kept_scores), scores, -jnp.inf)
     best_scores, best = jax.lax.top_k(scores, settings.new_hypotheses)
-    T_best = _take(T_object_reference, best)
+    T_best = take(T_object_reference, best)
     if settings.registered_sources == 0:
         return T_best, best_scores
     T_registered = register_sources(view, evidence, sources, sources_valid, settings) @ T_reference_touch.inverse()
@@ -375,7 +372,7 @@ def register_sources(view: LocalizationMap, evidence: TouchEvidence, sources: In
     """(R,) the new touch's sensor pose by ICP from each of the ``registered_sources`` most
     similar sources' poses, against the ``registration_union`` most similar imprints (object frame)."""
     union = settings.registration_union
-    starts = _take(view.T_object_sensor, sources[:settings.registered_sources])
+    starts = take(view.T_object_sensor, sources[:settings.registered_sources])
     register = jax.vmap(lambda T: icp(view, sources[:union], sources_valid[:union], evidence.contact,
                                       evidence.contact_valid, T, settings.icp).T_object_sensor)
     return register(starts)
@@ -409,14 +406,14 @@ def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "
                    duplicate_mm: float) -> tuple[jaxlie.SE3, Float[Array, "count"]]:
     """The ``count`` best poses, a pose within ``duplicate_mm`` of a better one dropped."""
     order = jnp.argsort(-scores)
-    poses, scores = _take(poses, order), scores[order]
+    poses, scores = take(poses, order), scores[order]
     probe = belief.replace(T_object_reference=poses)
     distance = jax.vmap(lambda T: hypothesis_distances(probe, T))(poses)  # (N, N)
     earlier = jnp.tril(jnp.ones_like(distance, bool), k=-1)  # [i, j]: j is better than i
     duplicate = jnp.any(earlier & (distance <= duplicate_mm) & jnp.isfinite(scores)[None, :], axis=1)
     scores = jnp.where(duplicate, -jnp.inf, scores)
     best_scores, best = jax.lax.top_k(scores, count)
-    return _take(poses, best), best_scores
+    return take(poses, best), best_scores
 
 
 def neighbourhood_probes(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
@@ -501,7 +498,7 @@ def update_belief(
     score = jax.vmap(lambda T: weigh(view, belief, T, settings))
     scores = jnp.where(pooled_valid, score(pooled), -jnp.inf)
     _, chosen = jax.lax.top_k(scores, settings.refine)
-    refined = jax.vmap(lambda T: refine(view, belief, T, settings))(_take(pooled, chosen))
+    refined = jax.vmap(lambda T: refine(view, belief, T, settings))(take(pooled, chosen))
     refined_scores = jnp.where(jnp.isfinite(scores[chosen]), score(refined), -jnp.inf)
     # A refinement that fits worse than its start keeps the start.
     better = refined_scores >= scores[chosen]
@@ -510,7 +507,7 @@ def update_belief(
     scores = scores.at[chosen].set(jnp.maximum(refined_scores, scores[chosen]))
     scores = jnp.where(jnp.isfinite(scores), scores, -jnp.inf)
     if settings.probe_mm > 0:
-        probes = neighbourhood_probes(view, belief, _take(pooled, jnp.argmax(scores)), settings.probe_mm)
+        probes = neighbourhood_probes(view, belief, take(pooled, jnp.argmax(scores)), settings.probe_mm)
         probe_scores = jnp.where(jnp.any(jnp.isfinite(scores)), score(probes), -jnp.inf)
         pooled = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pooled, probes)
         scores = jnp.concatenate([scores, jnp.where(jnp.isfinite(probe_scores), probe_scores, -jnp.inf)])

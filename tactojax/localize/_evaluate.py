@@ -233,7 +233,7 @@ def evaluate_localization(
     Args:
         key: PRNG key.
         tactile_map: the map, with features.
-        methods: ``"belief"`` and baselines (see :func:`~tactojax.localize.localize_baseline`).
+        methods: ``"belief"`` and baselines (see :func:`~tactojax.localize.baselines.localize_baseline`).
         calibration: the belief's scales (default: uncalibrated).
         symmetries: (S,) object-frame symmetry transforms for the symmetry-aware RMSE (default:
             the catalog's for a catalog object).

@@ -19,7 +19,7 @@ after the update has finished reports it (``updated``). The camera loop then nev
 the belief.
 
 Several maps: each keeps its own belief, all under one calibration, so their evidences compare:
-P(object) is their softmax (:func:`~tactojax.localize.identify_episodes` does the same offline).
+P(object) is their softmax (:func:`~tactojax.localize.evaluation.identify_episodes` does the same offline).
 
 Every program is compiled when the localizer is built (fixed image size, map sizes and
 settings) and accepts only arrays of the shapes it was built for, so a frame can never

@@ -240,7 +240,7 @@ def evaluate_new_grasps(
         view: the object's map (its symmetries and calibration are used).
         episodes: the test grasps (:class:`TestEpisodes`, F >= ``fingers``).
         methods: method names (``"belief"`` or a baseline of
-            :func:`~tactojax.localize.localize_baseline`).
+            :func:`~tactojax.localize.baselines.localize_baseline`).
         fingers: fingers fused per grasp (1 or 2).
         settings: belief parameters.
         points_per_touch: contact points of the ICP baselines.

@@ -6,7 +6,7 @@ against the map's signed-distance surface (:class:`~tactojax.localize.MapSurface
 object at ``T_world_object``; each jaw travels to its first contact and presses on by
 ``depth_mm``; the rigid indentation ``travel - distance`` is the predicted heightmap and its
 positive part the contact mask. The simulator's mesh is never read: this is what the belief's
-likelihood would see, so the next-grasp choice (:func:`~tactojax.localize.next_grasp`) can
+likelihood would see, so the next-grasp choice (:func:`~tactojax.localize.active.next_grasp`) can
 score a predicted touch with the same likelihood.
 
 Rays are sphere traced through a :class:`MarchingGrid`: the surface's signed distance where the

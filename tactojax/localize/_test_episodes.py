@@ -20,7 +20,7 @@ from tactojax.storage._test_grasps import read_test_grasps
 
 
 def load_test_episodes(path: str | Path, object_id: str, model, encoder, *, progress: bool = True):
-    """The test grasps of ``object_id`` as :class:`~tactojax.localize.TestEpisodes`.
+    """The test grasps of ``object_id`` as :class:`~tactojax.localize.evaluation.TestEpisodes`.
 
     Heightmaps and masks are *predicted* from the images by ``model`` (as a robot would), the
     features come from ``encoder``, the true poses and the true contact clouds (for the error)

@@ -1,5 +1,5 @@
 """New-grasps test sets (datasets of ``tactojax.simulate.GraspsProtocol``) read back as arrays, checked
-complete (``tactojax.localize.load_test_episodes`` turns them into the episodes that localization evaluates)."""
+complete (``tactojax.localize.evaluation.load_test_episodes`` turns them into the episodes that localization evaluates)."""
 
 from __future__ import annotations
 

@@ -12,7 +12,9 @@ from tactojax import CompilationCounter
 from tactojax.features import encode_images
 from tactojax.hardware import APPROACH_MM, active_episode, approach_pose, execute_grasp, simulated_cell
 from tactojax.io import load_encoder
-from tactojax.localize import ActiveSettings, BeliefSettings, Localizer, belief_error
+from tactojax.localize import BeliefSettings, Localizer
+from tactojax.localize.active import ActiveSettings
+from tactojax.localize.evaluation import belief_error
 from tactojax.localize._candidates import CandidateGrid
 from tactojax.objects import get_object
 from tactojax.simulate import GraspsProtocol, grasps_plan

@@ -3,13 +3,13 @@
 import pytest
 
 import tactojax.io
-import tactojax.localize
+import tactojax.localize.evaluation
 import tactojax.simulate
 import tactojax.storage
 
 MOVED = {
     "dataset_metadata": tactojax.simulate,
-    "load_test_episodes": tactojax.localize,
+    "load_test_episodes": tactojax.localize.evaluation,
     "sensor_metadata": tactojax.simulate,
     "simulate_to_dataset": tactojax.simulate,
 }

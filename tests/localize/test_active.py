@@ -6,8 +6,8 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize import (ActiveSettings, BeliefSettings, empty_belief, map_marching_grid, next_grasp,
-                               propose_grasps, should_stop)
+from tactojax.localize import BeliefSettings, empty_belief
+from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps, should_stop
 from tactojax.objects import get_object
 
 from active_fixtures import truth_map

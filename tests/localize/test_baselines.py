@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactojax.localize import IcpSettings, localize_baseline
+from tactojax.localize.baselines import IcpSettings, localize_baseline
 from tactojax.localize._baselines import Method, _localize_baseline, parse_method
 from tactojax.localize._evaluate import cloud_rmse
 from tactojax.localize._map import map_touch

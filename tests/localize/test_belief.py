@@ -278,7 +278,7 @@ def test_object_probability_is_the_softmax_of_every_maps_evidence(bumps_view, ri
                                                                   belief_settings):
     """P(object) over two maps from the same touches: the softmax of each map's belief's log
     evidence, enumerated here map by map with the belief itself."""
-    from tactojax.localize import TestEpisodes, identify_episodes
+    from tactojax.localize.evaluation import TestEpisodes, identify_episodes
 
     T_first, T_second = synthetic.sensor_pose(-2.0, 1.0), synthetic.sensor_pose(3.0, -2.5)
     touches = [synthetic.touch(synthetic.bumps, T) for T in (T_first, T_second)]

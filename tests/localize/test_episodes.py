@@ -7,7 +7,7 @@ import pytest
 
 from tactojax.geometry import pixel_grid
 import tactojax.localize
-from tactojax.localize import evaluate_new_grasps, record_beliefs
+from tactojax.localize.evaluation import evaluate_new_grasps, record_beliefs
 from tactojax.localize._calibrate import predict_within
 
 PLACES = [[(-2.0, 1.0, 0.0), (3.0, -2.5, 5.0)], [(1.5, -1.0, -4.0), (-4.5, 2.5, 3.0)]]
@@ -30,7 +30,7 @@ def episodes(synthetic):
     shape = (len(PLACES), len(PLACES[0]), 1)
     stack = lambda values: jnp.asarray(np.stack(values)).reshape(*shape, *np.shape(values[0]))  # noqa: E731
     # (TestEpisodes is not imported by name: pytest would try to collect it)
-    return tactojax.localize.TestEpisodes(
+    return tactojax.localize.evaluation.TestEpisodes(
         heightmaps=stack([t.heightmap for t in touches]), masks=stack([t.mask for t in touches]),
         features=stack([t.feature for t in touches]), openings=jnp.full(shape[:2], 20.0),
         T_object_sensor=jaxlie.SE3(stack(poses)), cloud_mean=stack(means), cloud_covariance=stack(covariances))

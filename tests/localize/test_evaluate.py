@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tactojax.localize import evaluate_localization, map_size_study
+from tactojax.localize.evaluation import evaluate_localization, map_size_study
 from tactojax.localize._evaluate import cloud_moments, moment_rmse
 from tactojax.localize._retrieval import closest_imprints
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from tactojax.localize import IcpSettings, Touch
+from tactojax.localize import Touch
+from tactojax.localize.baselines import IcpSettings
 from tactojax.localize._evaluate import cloud_rmse
 from tactojax.localize._icp import icp
 from tactojax.localize._points import contact_points

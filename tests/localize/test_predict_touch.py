@@ -5,7 +5,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize import PredictionSettings, map_marching_grid, predict_grasp
+from tactojax.localize.active import PredictionSettings, map_marching_grid, predict_grasp
 from tactojax.objects import get_object
 from tactojax.simulate import GraspsProtocol, simulate_two_sensor_grasps
 from tactojax.simulate._protocols import grasp_candidates
