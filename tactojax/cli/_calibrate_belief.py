@@ -15,7 +15,7 @@ def add_parser(commands) -> None:
                     "their own, never the test set's) and fit its temperature, appearance weight and "
                     "fusion exponent so that its P(within 2 mm) is calibrated; the fit is stored in the "
                     "map's header, where every command that runs the belief reads it.")
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` (rewritten in place)")
+    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (rewritten in place)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
                         help="new-grasps datasets holding each map's object (`--protocol grasps`)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=2,
@@ -46,10 +46,11 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder
-    from tactojax.io import DEFAULT_ENCODER, resolve_shape_model, save_tactile_map, tactile_map_metadata
+    from tactojax.io import DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, save_tactile_map, tactile_map_metadata
     from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
     from tactojax.localize.evaluation import record_beliefs
 
+    args.maps = expand_catalogs(args.maps)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     if args.rounds < 1:
         raise ValueError(f"--rounds must be at least 1, got {args.rounds}")

@@ -21,7 +21,7 @@ def add_parser(commands) -> None:
                     "symmetry-aware RMSE for symmetric catalog objects, the share within 2 mm and, for the "
                     "belief, its mean predicted P(within 2 mm) and calibration gap; saves the error "
                     "histograms.")
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map`")
+    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map`, or map catalogs")
     parser.add_argument("--methods", default=None,
                         help="comma-separated: belief, and the paper's baselines random, cti, cti-icp-N "
                              f"(default {DEFAULT_METHODS}; with --test {DEFAULT_TEST_METHODS})")
@@ -46,6 +46,9 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
+    from tactojax.io import expand_catalogs
+
+    args.maps = expand_catalogs(args.maps)
     if args.test:
         from tactojax.cli._eval_new_grasps import run_new_grasps
 

@@ -13,7 +13,8 @@ def add_parser(commands) -> None:
         description="Every imprint of every map is held out of its own map and identified as the "
                     "object whose map holds the most similar imprint (paper section VII); prints "
                     "top-1 accuracy and the confusion matrix, and saves it as a figure.")
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) of different objects")
+    parser.add_argument("maps", nargs="+",
+                        help="tactile maps (.npz) of different objects, or map catalogs (`tactojax map-catalog`)")
     add_encoder_argument(parser)
     parser.add_argument("--figure", metavar="PNG", default="identification.png", help="confusion-matrix figure")
     parser.add_argument("--json", metavar="PATH", help="write the metrics as JSON")
@@ -28,9 +29,11 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
+    from tactojax.io import expand_catalogs
     from tactojax.localize.evaluation import evaluate_identification
     from tactojax.viz import confusion_figure, save_png
 
+    args.maps = expand_catalogs(args.maps)
     if len(args.maps) < 2:
         raise ValueError("identification needs the maps of at least two objects")
     if args.test:

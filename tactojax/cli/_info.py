@@ -1,4 +1,4 @@
-"""``tactojax info DIR``: what a dataset holds (counts per object, image size, sensor)."""
+"""``tactojax info DIR``: what a dataset holds (counts per object, image size, sensor), or a map catalog."""
 
 from __future__ import annotations
 
@@ -6,9 +6,10 @@ from tactojax.cli._table import format_table, write_json
 
 
 def add_parser(commands) -> None:
-    parser = commands.add_parser("info", help="summarise a dataset, or list the object catalog",
-                                 description="Counts per object, image size and sensor of a dataset.")
-    parser.add_argument("dataset", nargs="?", help="dataset directory")
+    parser = commands.add_parser("info", help="summarise a dataset or a map catalog, or list the object catalog",
+                                 description="Counts per object, image size and sensor of a dataset; the maps, "
+                                             "sizes and build times of a map catalog (`tactojax map-catalog`).")
+    parser.add_argument("dataset", nargs="?", help="dataset or map-catalog directory")
     parser.add_argument("--json", metavar="PATH", help="also write the summary as JSON")
     parser.add_argument("--objects", action="store_true", help="list the built-in object catalog")
     parser.add_argument("--ycb", choices=["all", "training"],
@@ -27,8 +28,16 @@ def run(args) -> int:
         return 0
     if not args.dataset:
         raise ValueError("give a dataset directory, or --objects to list the catalog (--ycb the YCB scans)")
-    from tactojax.io import dataset_summary
+    from tactojax.io import dataset_summary, is_catalog, read_catalog
 
+    if is_catalog(args.dataset):
+        from tactojax.cli._map_catalog import summary_table
+
+        index = read_catalog(args.dataset)
+        print(summary_table(args.dataset, index))
+        if args.json:
+            write_json(args.json, index)
+        return 0
     summary = dataset_summary(args.dataset)
     metadata = summary.get("metadata", {})
     sensor = metadata.get("sensor", {})

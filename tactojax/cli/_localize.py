@@ -26,7 +26,7 @@ def add_parser(commands) -> None:
                "w x y z (unit norm), then translation x y z in mm. A single image may leave it out: the "
                "world frame is then that grasp's gripper frame.")
     parser.add_argument("paths", nargs="+", metavar="PATH",
-                        help=f"one or more tactile maps ({MAP_SUFFIX}), then one or more tactile images (PNG/JPEG), "
+                        help=f"one or more tactile maps ({MAP_SUFFIX}) or map catalogs, then one or more tactile images (PNG/JPEG), "
                              "one per grasp")
     parser.add_argument("--opening", type=float, nargs="+", required=True, metavar="MM",
                         help="gripper opening at each grasp, mm: one for all images, or one per image")
@@ -60,14 +60,20 @@ def read_image(path: str):
 
 
 def split_paths(paths: list[str]) -> tuple[list[str], list[str]]:
-    """The positional arguments as (maps, images): maps first, then images."""
-    is_map = [p.lower().endswith(MAP_SUFFIX) for p in paths]
+    """The positional arguments as (maps, images): maps (or map catalogs, spelt out into their
+    maps) first, then images."""
+    from pathlib import Path
+
+    from tactojax.io import expand_catalogs
+
+    is_map = [p.lower().endswith(MAP_SUFFIX) or Path(p).is_dir() for p in paths]
     maps, images = [p for p, m in zip(paths, is_map) if m], [p for p, m in zip(paths, is_map) if not m]
     if not maps or not images:
-        raise ValueError(f"give at least one map ({MAP_SUFFIX}) and then at least one image, got {paths}")
+        raise ValueError(f"give at least one map ({MAP_SUFFIX} or a map catalog) and then at least one image, "
+                         f"got {paths}")
     if is_map.index(False) < len(maps):
         raise ValueError(f"give the maps ({MAP_SUFFIX}) first, then the images: got {paths}")
-    return maps, images
+    return expand_catalogs(maps), images
 
 
 def grasp_poses(gripper_poses, count: int):

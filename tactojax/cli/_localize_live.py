@@ -24,7 +24,7 @@ def add_parser(commands) -> None:
                         help="the opposite finger's tactile camera, when it carries a sensor (same kinds of source "
                              "and --corners as --camera): read in step with --camera, each grasp's belief "
                              "update then fuses both fingers")
-    parser.add_argument("--map", nargs="+", required=True, dest="maps", metavar="MAP", help="object maps (.npz)")
+    parser.add_argument("--map", nargs="+", required=True, dest="maps", metavar="MAP", help="object maps (.npz) or map catalogs")
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--opening", type=float, help="fixed gripper opening, mm")
     source.add_argument("--gripper", metavar="URL",
@@ -83,7 +83,7 @@ def run(args) -> int:
     from tactojax.cli._table import format_table, write_json
     from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
     from tactojax.hardware._live import PoseLookup
-    from tactojax.io import resolve_shape_model
+    from tactojax.io import expand_catalogs, resolve_shape_model
     from tactojax.localize import LiveSettings, Localizer, Tracker
 
     if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
@@ -91,6 +91,7 @@ def run(args) -> int:
     if not args.max_skew_ms > 0:
         raise ValueError(f"--max-skew-ms must be positive, got {args.max_skew_ms}")
     model = resolve_shape_model(args.model)
+    args.maps = expand_catalogs(args.maps)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     calibrations = [stored_calibration(path, args.encoder) for path in args.maps]
     print("compiling the touch program ...", flush=True)

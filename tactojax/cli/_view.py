@@ -11,7 +11,7 @@ def add_parser(commands) -> None:
                     "with pose beliefs as weighted frames, to a rerun recording: saved as .rrd (open it with "
                     "`rerun FILE.rrd` or the web viewer) or served to rerun's web viewer on localhost. Needs the "
                     "`viz` extra (rerun-sdk).")
-    parser.add_argument("maps", nargs="+", metavar="MAP", help="tactile maps (.npz)")
+    parser.add_argument("maps", nargs="+", metavar="MAP", help="tactile maps (.npz) or map catalogs")
     parser.add_argument("--test", metavar="DIR", help="a dataset of test touches (e.g. from tactojax simulate)")
     parser.add_argument("--estimates", metavar="JSON",
                         help="estimates: a list of {object_id, T_object_sensor_wxyz_xyz, [T_object_sensor_true_"
@@ -33,9 +33,10 @@ def run(args) -> int:
     import time
 
     from tactojax.cli._table import format_table
-    from tactojax.io import load_tactile_map
+    from tactojax.io import expand_catalogs, load_tactile_map
     from tactojax.viz import log_view, open_recording, read_estimates
 
+    args.maps = expand_catalogs(args.maps)
     estimates = read_estimates(args.estimates) if args.estimates else []
     tactile_maps = [load_tactile_map(path) for path in args.maps]
     recording, url = open_recording(save=args.save, serve=args.serve, web_port=args.web_port,

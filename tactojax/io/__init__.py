@@ -16,6 +16,12 @@ from tactojax.io._encoder import resolve_encoder as resolve_encoder
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
 from tactojax.io._imprints import load_imprints as load_imprints
+from tactojax.io._catalog import catalog_maps as catalog_maps
+from tactojax.io._catalog import catalog_slug as catalog_slug
+from tactojax.io._catalog import expand_catalogs as expand_catalogs
+from tactojax.io._catalog import is_catalog as is_catalog
+from tactojax.io._catalog import read_catalog as read_catalog
+from tactojax.io._catalog import write_catalog as write_catalog
 from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
@@ -75,6 +81,12 @@ _MOVED = {
 __getattr__ = moved_names(__name__, _MOVED)
 
 __all__ = [
+    "catalog_maps",
+    "catalog_slug",
+    "expand_catalogs",
+    "is_catalog",
+    "read_catalog",
+    "write_catalog",
     "bundled_encoders",
     "bundled_shape_models",
     "check_mesh",

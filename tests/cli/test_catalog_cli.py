@@ -1,0 +1,47 @@
+"""``tactojax map-catalog``: many objects into one directory, resumable; ``info`` summarises it and
+the commands that take maps take it."""
+
+import json
+
+from tactojax.cli import main
+from tactojax.io import catalog_maps, load_tactile_map, read_catalog, save_shape_model
+
+
+def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_encoder_path, tmp_path, capsys):
+    model = save_shape_model(tmp_path / "lookup.msgpack", lookup_model)
+    out = tmp_path / "catalog"
+    common = ["--out", str(out), "--grid-mm", "40", "--scale", "0.25", "--model", str(model), "--encoder",
+              str(tiny_encoder_path), "--points", "64", "--no-progress"]
+    assert main(["map-catalog", "cylinder", "missing.stl", *common]) == 0
+    index = read_catalog(out)
+    assert index["objects"]["cylinder"]["status"] == "built"
+    assert index["objects"]["missing.stl"]["status"] == "failed"
+    assert "does not exist" in index["objects"]["missing.stl"]["error"]
+    cylinder = load_tactile_map(out / "cylinder.npz")
+    assert cylinder.object_id == "cylinder" and cylinder.features.shape[1] > 0  # the encoder's, stored
+    assert index["objects"]["cylinder"]["imprints"] == len(cylinder)
+    assert not (out / ".data" / "cylinder").exists()  # the simulated dataset is not kept
+
+    # Interrupted while building the gum box (its half-written dataset is left), then resumed.
+    leftover = out / ".data" / "gum_box"
+    leftover.mkdir(parents=True)
+    (leftover / "chunk-junk.npz").write_bytes(b"half")
+    built_at = (out / "cylinder.npz").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["map-catalog", "cylinder", "gum_box", *common]) == 0
+    assert "1 of 2 objects already built" in capsys.readouterr().out
+    assert (out / "cylinder.npz").stat().st_mtime_ns == built_at
+    assert not leftover.exists()
+    assert catalog_maps(out) == [out / "cylinder.npz", out / "gum_box.npz"]
+
+    assert main(["info", str(out), "--json", str(tmp_path / "info.json")]) == 0
+    assert "2 of 3 objects mapped" in capsys.readouterr().out
+    assert json.loads((tmp_path / "info.json").read_text())["objects"]["gum_box"]["status"] == "built"
+
+    # The catalog stands for its maps: identification among them (leave-one-out retrieval).
+    assert main(["identify", str(out), "--json", str(tmp_path / "id.json"), "--figure", str(tmp_path / "id.png")]) == 0
+    assert json.loads((tmp_path / "id.json").read_text())["objects"] == ["cylinder", "gum_box"]
+
+    # Other settings are another catalog.
+    assert main(["map-catalog", "cylinder", *common[:-1], "--grid-mm", "30", "--no-progress"]) == 2
+    assert "was built with other settings" in capsys.readouterr().err
