@@ -27,6 +27,7 @@ from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import moment_rmse
 from tactojax.localize._map import LocalizationMap, Touch
+from tactojax.localize._sharded import batch_mesh, over_batch, per_device, run_sharded
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
@@ -154,24 +155,21 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings"))
-def _single_touches(view: LocalizationMap, episodes: TestEpisodes, method, points_per_touch: int,
-                    settings: BeliefSettings):
-    """Every grasp's sensor-finger touch alone: (E * G,) errors."""
-    take = lambda x: x[:, :, 0].reshape(-1, *x.shape[3:])  # noqa: E731
-    heightmaps, masks, features = take(episodes.heightmaps), take(episodes.masks), take(episodes.features)
-    openings = episodes.openings.reshape(-1)
-    T_true = jax.tree.map(take, episodes.T_object_sensor)
-    mean, covariance = take(episodes.cloud_mean), take(episodes.cloud_covariance)
-
-    def one(heightmap, mask, feature, opening, T, m, c):
-        touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
+@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings", "mesh"))
+def _single_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int,
+                    settings: BeliefSettings, mesh):
+    """Touches localized alone: ``touches`` holds one per item (leading axis T), as (T, 1, 1)
+    episodes; (T,) errors, sharded over ``mesh``'s batch axis."""
+    def one(view, touch: TestEpisodes):
+        take = lambda x: x[0, 0]  # noqa: E731
+        T, m, c = jax.tree.map(take, touch.T_object_sensor), take(touch.cloud_mean), take(touch.cloud_covariance)
+        query = episode_touch(touch, 0, 0)
         if method.kind == "belief":
-            belief = update_belief(view, empty_belief(view, settings), touch, jaxlie.SE3.identity(), settings)
+            belief = update_belief(view, empty_belief(view, settings), query, jaxlie.SE3.identity(), settings)
             estimate, probability = belief.best, belief.probability_within()
             nll, covered = belief.truth_scores(T)
         else:
-            estimate = baseline_estimate(jax.random.key(0), view, touch, method,
+            estimate = baseline_estimate(jax.random.key(0), view, query, method,
                                          points_per_touch=points_per_touch).T_object_sensor
             probability, nll, covered = jnp.float32(jnp.nan), jnp.float32(jnp.nan), jnp.bool_(False)
         one_touch = lambda x: x[None]  # noqa: E731
@@ -179,8 +177,7 @@ def _single_touches(view: LocalizationMap, episodes: TestEpisodes, method, point
                          jnp.ones(1, bool), view.symmetries)
         return (*errors, probability, nll, covered)
 
-    return jax.lax.map(lambda args: one(*args), (heightmaps, masks, features, openings, T_true, mean, covariance),
-                       batch_size=8)
+    return over_batch(lambda view, touches: jax.vmap(one, in_axes=(None, 0))(view, touches), mesh)(view, touches)
 
 
 def episode_touch(episode: TestEpisodes, g, finger: int) -> Touch:
@@ -206,7 +203,6 @@ def fuse_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, set
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
 def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings):
     """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
     grasps = episode.openings.shape[0]
@@ -224,6 +220,25 @@ def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, s
     return fuse_episode(view, episode, fingers, settings, observe)
 
 
+@functools.partial(jax.jit, static_argnames=("fingers", "settings", "mesh"))
+def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int, settings: BeliefSettings, mesh):
+    """Every episode's belief after each of its G grasps: (E, G) errors and probabilities,
+    vmapped over the episodes and sharded over ``mesh``'s batch axis."""
+    local = jax.vmap(lambda view, episode: _fused_episode(view, episode, fingers, settings), in_axes=(None, 0))
+    return over_batch(local, mesh)(view, episodes)
+
+
+def _single_touch_episodes(episodes: TestEpisodes) -> TestEpisodes:
+    """Every grasp's sensor-finger touch as an episode of its own: (E * G, 1, 1) episodes."""
+    def one(x):
+        return x[:, :, :1].reshape(-1, 1, 1, *x.shape[3:])
+
+    return TestEpisodes(heightmaps=one(episodes.heightmaps), masks=one(episodes.masks),
+                        features=one(episodes.features), openings=episodes.openings.reshape(-1, 1),
+                        T_object_sensor=jax.tree.map(one, episodes.T_object_sensor),
+                        cloud_mean=one(episodes.cloud_mean), cloud_covariance=one(episodes.cloud_covariance))
+
+
 def evaluate_new_grasps(
     view: LocalizationMap,
     episodes: TestEpisodes,
@@ -232,9 +247,17 @@ def evaluate_new_grasps(
     fingers: int = 1,
     settings: BeliefSettings = BeliefSettings(),
     points_per_touch: int = 128,
+    devices=None,
+    touches_per_device: int = 8,
+    episodes_per_device: int = 4,
     progress: bool = False,
 ) -> list[EpisodeErrors]:
     """Single-touch errors of every method, and the belief fused over 1..G grasps.
+
+    Touches and episodes run as one compiled program each (vmapped), their batch sharded over
+    ``devices`` (a mesh with one ``batch`` axis); the program is called once per chunk of
+    ``devices x touches_per_device`` touches (``episodes_per_device`` episodes), which bounds
+    the memory.
 
     Args:
         view: the object's map (its symmetries and calibration are used).
@@ -244,7 +267,10 @@ def evaluate_new_grasps(
         fingers: fingers fused per grasp (1 or 2).
         settings: belief parameters.
         points_per_touch: contact points of the ICP baselines.
-        progress: show progress bars.
+        devices: the devices the batch is sharded over (default: every local device).
+        touches_per_device, episodes_per_device: single touches and fused episodes a device
+            localizes at once (vmapped).
+        progress: show progress bars (per chunk).
 
     Returns:
         one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1),
@@ -253,21 +279,25 @@ def evaluate_new_grasps(
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
+    mesh = batch_mesh(devices)
+    touches = _single_touch_episodes(episodes)
+    count = touches.openings.shape[0]
     results = []
-    for name in tqdm(methods, desc="single touches", disable=not progress):
+    for name in methods:
         method = parse_method(name)
-        out = jax.device_get(_single_touches(view, episodes, method, points_per_touch, settings))
-        results.append(EpisodeErrors(method.name, 1, 1, False, *(np.asarray(x) for x in out)))
+        program = functools.partial(_single_touches, method=method, points_per_touch=points_per_touch,
+                                    settings=settings, mesh=mesh)
+        with tqdm(total=count, desc=f"single touches ({method.name})", unit="touch", disable=not progress) as bar:
+            out = run_sharded(program, view, touches, mesh=mesh, bar=bar,
+                              per_device=per_device(count, mesh, touches_per_device))
+        results.append(EpisodeErrors(method.name, 1, 1, False, *out))
     if any(parse_method(name).kind == "belief" for name in methods):
-        count, grasps = episodes.openings.shape
-        per_episode = []
-        for e in tqdm(range(count), desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})",
-                      disable=not progress):
-            episode = jax.tree.map(lambda x: x[e], episodes)
-            per_episode.append(jax.device_get(_fused_episode(view, episode, fingers, settings)))
-        stacked = [np.stack([p[i] for p in per_episode]) for i in range(7)]  # (E, G) each
-        for g in range(grasps):
-            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))
+        program = functools.partial(_fused_episodes, fingers=fingers, settings=settings, mesh=mesh)
+        count = episodes.openings.shape[0]
+        with tqdm(total=count, desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})", unit="episode",
+                  disable=not progress) as bar:
+            out = run_sharded(program, view, episodes, mesh=mesh, bar=bar,
+                              per_device=per_device(count, mesh, episodes_per_device))
+        for g in range(episodes.openings.shape[1]):  # out: (E, G) each
+            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in out)))
     return results
-
-
