@@ -53,6 +53,16 @@ class TestEpisodes:
     cloud_covariance: Float[Array, "E G F 3 3"]
     """Its covariance, mm^2."""
 
+    def sensor_touches(self) -> TestEpisodes:
+        """Every grasp's sensor-finger touch (finger 0) as an episode of its own: (E * G, 1, 1) episodes."""
+        def alone(x):
+            return x[:, :, :1].reshape(-1, 1, 1, *x.shape[3:])
+
+        return TestEpisodes(heightmaps=alone(self.heightmaps), masks=alone(self.masks), features=alone(self.features),
+                            openings=self.openings.reshape(-1, 1),
+                            T_object_sensor=jax.tree.map(alone, self.T_object_sensor),
+                            cloud_mean=alone(self.cloud_mean), cloud_covariance=alone(self.cloud_covariance))
+
 
 @dataclass
 class EpisodeErrors:
@@ -228,17 +238,6 @@ def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int,
     return over_batch(local, mesh)(view, episodes)
 
 
-def _single_touch_episodes(episodes: TestEpisodes) -> TestEpisodes:
-    """Every grasp's sensor-finger touch as an episode of its own: (E * G, 1, 1) episodes."""
-    def one(x):
-        return x[:, :, :1].reshape(-1, 1, 1, *x.shape[3:])
-
-    return TestEpisodes(heightmaps=one(episodes.heightmaps), masks=one(episodes.masks),
-                        features=one(episodes.features), openings=episodes.openings.reshape(-1, 1),
-                        T_object_sensor=jax.tree.map(one, episodes.T_object_sensor),
-                        cloud_mean=one(episodes.cloud_mean), cloud_covariance=one(episodes.cloud_covariance))
-
-
 def evaluate_new_grasps(
     view: LocalizationMap,
     episodes: TestEpisodes,
@@ -247,6 +246,7 @@ def evaluate_new_grasps(
     fingers: int = 1,
     settings: BeliefSettings = BeliefSettings(),
     points_per_touch: int = 128,
+    single_touches: bool = True,
     devices=None,
     touches_per_device: int = 8,
     episodes_per_device: int = 4,
@@ -267,23 +267,26 @@ def evaluate_new_grasps(
         fingers: fingers fused per grasp (1 or 2).
         settings: belief parameters.
         points_per_touch: contact points of the ICP baselines.
+        single_touches: localize every grasp's sensor-finger touch alone with each method
+            (False: only the belief's fused episodes).
         devices: the devices the batch is sharded over (default: every local device).
         touches_per_device, episodes_per_device: single touches and fused episodes a device
             localizes at once (vmapped).
         progress: show progress bars (per chunk).
 
     Returns:
-        one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1),
-        then, for the belief, one per number of fused grasps with ``fingers`` fingers.
+        one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1;
+        if ``single_touches``), then, for the belief, one per number of fused grasps with
+        ``fingers`` fingers.
     """
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
     mesh = batch_mesh(devices)
-    touches = _single_touch_episodes(episodes)
+    touches = episodes.sensor_touches()
     count = touches.openings.shape[0]
     results = []
-    for name in methods:
+    for name in methods if single_touches else ():  # the touches: (E * G, 1, 1) episodes
         method = parse_method(name)
         program = functools.partial(_single_touches, method=method, points_per_touch=points_per_touch,
                                     settings=settings, mesh=mesh)
