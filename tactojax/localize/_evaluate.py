@@ -16,7 +16,6 @@ query's neighbours in its fold are gone too).
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import asdict, dataclass, field
 
 import jax
@@ -32,7 +31,7 @@ from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
-from tactojax.localize._sharded import batch_mesh, over_batch, per_device, run_sharded
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
 from tactojax.localize._surface import build_map_surface
 from tactojax.mapping import TactileMap
 
@@ -41,6 +40,9 @@ HISTOGRAM_EDGES_MM = tuple(float(x) for x in np.arange(0.0, 85.0, 5.0))
 
 MAP_FRACTIONS = (0.1, 0.25, 0.5, 0.75, 1.0)
 """Map sizes of the paper's Fig. 7 (fractions of the touches)."""
+
+BELIEF_BATCH_SIZE = 4
+"""Queries a device localizes at once with the belief (vmapped)."""
 
 
 def cloud_rmse(
@@ -129,9 +131,11 @@ def oracle_imprints(
     return indices, eligible[indices]
 
 
-@functools.partial(jax.jit, static_argnames=("method", "settings", "points_per_touch", "oracle", "mesh"))
-def _baseline_queries(shared, queries, method, settings, points_per_touch, oracle, mesh):
-    """Baseline estimates and errors of (Q,) held-out queries, vmapped, sharded over ``mesh``."""
+@functools.partial(jax.jit,
+                   static_argnames=("method", "settings", "points_per_touch", "oracle", "batch_size", "mesh"))
+def _baseline_queries(shared, queries, method, settings, points_per_touch, oracle, batch_size, mesh):
+    """Baseline estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on each
+    device of ``mesh``."""
     def one(shared, query):
         key, view, max_opening_difference_mm = shared
         exclude, cloud, valid, T = query
@@ -149,12 +153,14 @@ def _baseline_queries(shared, queries, method, settings, points_per_touch, oracl
         errors = pose_errors(cloud, valid, T, estimate.T_object_sensor, view.symmetries)
         return estimate.T_object_sensor, jnp.float32(jnp.nan), estimate.imprint_index, errors
 
-    return over_batch(jax.vmap(one, in_axes=(None, 0)), mesh)(shared, queries)
+    return over_batch(lambda shared, queries: in_batches(lambda q: one(shared, q), queries, batch_size), mesh)(
+        shared, queries)
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "mesh"))
-def _belief_queries(view, queries, settings, mesh):
-    """The belief's estimates and errors of (Q,) held-out queries, 4 at once per device, sharded over ``mesh``."""
+@functools.partial(jax.jit, static_argnames=("settings", "batch_size", "mesh"))
+def _belief_queries(view, queries, settings, batch_size, mesh):
+    """The belief's estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on
+    each device of ``mesh``."""
     from tactojax.localize._belief import empty_belief, update_belief  # (which imports this module's metric)
 
     def one(view, query):
@@ -164,7 +170,7 @@ def _belief_queries(view, queries, settings, mesh):
         errors = pose_errors(cloud, valid, T, belief.best, view.symmetries)
         return belief.best, belief.probability_within(), jnp.int32(-1), errors
 
-    return over_batch(lambda view, queries: jax.lax.map(lambda q: one(view, q), queries, batch_size=4), mesh)(
+    return over_batch(lambda view, queries: in_batches(lambda q: one(view, q), queries, batch_size), mesh)(
         view, queries)
 
 
@@ -256,8 +262,7 @@ def evaluate_localization(
             most similar (a diagnostic that separates retrieval from registration errors).
         folds: the belief's queries are held out of the map's surface in this many folds.
         max_opening_difference_mm: CTI's opening filter, mm.
-        chunk_size: queries a device localizes per call (vmapped; the belief's 4 at a time):
-            fixed, so that each method compiles once (fewer when the queries fill less than one call).
+        chunk_size: queries a device localizes at once with a baseline (vmapped; the belief: 4).
         pad_to_multiple: pad the map with invalid imprints to a multiple of this many, so that
             maps of similar sizes share compilations (1: no padding).
         devices: the devices the queries are sharded over (default: every local device).
@@ -287,14 +292,17 @@ def evaluate_localization(
             fold_of = np.arange(count) % max(1, min(folds, count))
             groups = [(np.flatnonzero(fold_of == f), _without(tactile_map, view, queries[fold_of == f]))
                       for f in range(fold_of.max() + 1)]
-            largest = max(len(positions) for positions, _ in groups)
-            queries_per_device = 4 * math.ceil(per_device(largest, mesh, max(1, chunk_size // 4) * 4) / 4)
-            program = functools.partial(_belief_queries, settings=belief_settings, mesh=mesh)
+            largest = max(len(positions) for positions, _ in groups)  # one shape for every fold
+            batch_size = min(BELIEF_BATCH_SIZE, largest)
+            queries_per_device = per_device(largest, mesh, batch_size)
+            program = functools.partial(_belief_queries, settings=belief_settings, batch_size=batch_size, mesh=mesh)
         else:
             groups = [(np.arange(count), view)]
-            queries_per_device = per_device(count, mesh, chunk_size)
+            batch_size = min(chunk_size, count)
+            queries_per_device = per_device(count, mesh, batch_size)
             program = functools.partial(_baseline_queries, method=method, settings=settings,
-                                        points_per_touch=points_per_touch, oracle=oracle, mesh=mesh)
+                                        points_per_touch=points_per_touch, oracle=oracle, batch_size=batch_size,
+                                        mesh=mesh)
         placed, outputs = [], []
         with tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", unit="query",
                   disable=not progress) as bar:

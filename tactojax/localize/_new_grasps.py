@@ -27,7 +27,7 @@ from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import moment_rmse
 from tactojax.localize._map import LocalizationMap, Touch
-from tactojax.localize._sharded import batch_mesh, over_batch, per_device, run_sharded
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
@@ -165,11 +165,11 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings", "mesh"))
+@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings", "batch_size", "mesh"))
 def _single_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int,
-                    settings: BeliefSettings, mesh):
+                    settings: BeliefSettings, batch_size: int, mesh):
     """Touches localized alone: ``touches`` holds one per item (leading axis T), as (T, 1, 1)
-    episodes; (T,) errors, sharded over ``mesh``'s batch axis."""
+    episodes; (T,) errors, ``batch_size`` at a time on each device of ``mesh``."""
     def one(view, touch: TestEpisodes):
         take = lambda x: x[0, 0]  # noqa: E731
         T, m, c = jax.tree.map(take, touch.T_object_sensor), take(touch.cloud_mean), take(touch.cloud_covariance)
@@ -187,7 +187,8 @@ def _single_touches(view: LocalizationMap, touches: TestEpisodes, method, points
                          jnp.ones(1, bool), view.symmetries)
         return (*errors, probability, nll, covered)
 
-    return over_batch(lambda view, touches: jax.vmap(one, in_axes=(None, 0))(view, touches), mesh)(view, touches)
+    return over_batch(lambda view, touches: in_batches(lambda t: one(view, t), touches, batch_size), mesh)(
+        view, touches)
 
 
 def episode_touch(episode: TestEpisodes, g, finger: int) -> Touch:
@@ -230,11 +231,14 @@ def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, s
     return fuse_episode(view, episode, fingers, settings, observe)
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings", "mesh"))
-def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int, settings: BeliefSettings, mesh):
+@functools.partial(jax.jit, static_argnames=("fingers", "settings", "batch_size", "mesh"))
+def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int, settings: BeliefSettings,
+                    batch_size: int, mesh):
     """Every episode's belief after each of its G grasps: (E, G) errors and probabilities,
-    vmapped over the episodes and sharded over ``mesh``'s batch axis."""
-    local = jax.vmap(lambda view, episode: _fused_episode(view, episode, fingers, settings), in_axes=(None, 0))
+    ``batch_size`` episodes at a time on each device of ``mesh``."""
+    def local(view, episodes):
+        return in_batches(lambda episode: _fused_episode(view, episode, fingers, settings), episodes, batch_size)
+
     return over_batch(local, mesh)(view, episodes)
 
 
@@ -248,16 +252,16 @@ def evaluate_new_grasps(
     points_per_touch: int = 128,
     single_touches: bool = True,
     devices=None,
-    touches_per_device: int = 8,
-    episodes_per_device: int = 4,
+    touch_batch_size: int = 8,
+    episode_batch_size: int = 1,
     progress: bool = False,
 ) -> list[EpisodeErrors]:
     """Single-touch errors of every method, and the belief fused over 1..G grasps.
 
-    Touches and episodes run as one compiled program each (vmapped), their batch sharded over
-    ``devices`` (a mesh with one ``batch`` axis); the program is called once per chunk of
-    ``devices x touches_per_device`` touches (``episodes_per_device`` episodes), which bounds
-    the memory.
+    Touches and episodes run as one compiled program each, their batch sharded over ``devices``
+    (a mesh with one ``batch`` axis), each device localizing ``touch_batch_size`` touches
+    (``episode_batch_size`` episodes) at once, vmapped; the program is called once per chunk of
+    a few such batches per device, which bounds the memory.
 
     Args:
         view: the object's map (its symmetries and calibration are used).
@@ -270,8 +274,10 @@ def evaluate_new_grasps(
         single_touches: localize every grasp's sensor-finger touch alone with each method
             (False: only the belief's fused episodes).
         devices: the devices the batch is sharded over (default: every local device).
-        touches_per_device, episodes_per_device: single touches and fused episodes a device
-            localizes at once (vmapped).
+        touch_batch_size, episode_batch_size: single touches and fused episodes a device
+            localizes at once (vmapped; 1: one at a time). The results do not depend on the
+            devices; they can move by rounding with these sizes, and the belief's discrete choices
+            can follow (episodes go one at a time by default: the reference results).
         progress: show progress bars (per chunk).
 
     Returns:
@@ -285,22 +291,25 @@ def evaluate_new_grasps(
     mesh = batch_mesh(devices)
     touches = episodes.sensor_touches()
     count = touches.openings.shape[0]
+    touch_batch_size = min(touch_batch_size, count)  # (a small test set: no padded batch)
     results = []
     for name in methods if single_touches else ():  # the touches: (E * G, 1, 1) episodes
         method = parse_method(name)
         program = functools.partial(_single_touches, method=method, points_per_touch=points_per_touch,
-                                    settings=settings, mesh=mesh)
+                                    settings=settings, batch_size=touch_batch_size, mesh=mesh)
         with tqdm(total=count, desc=f"single touches ({method.name})", unit="touch", disable=not progress) as bar:
             out = run_sharded(program, view, touches, mesh=mesh, bar=bar,
-                              per_device=per_device(count, mesh, touches_per_device))
+                              per_device=per_device(count, mesh, touch_batch_size))
         results.append(EpisodeErrors(method.name, 1, 1, False, *out))
     if any(parse_method(name).kind == "belief" for name in methods):
-        program = functools.partial(_fused_episodes, fingers=fingers, settings=settings, mesh=mesh)
         count = episodes.openings.shape[0]
+        episode_batch_size = min(episode_batch_size, count)
+        program = functools.partial(_fused_episodes, fingers=fingers, settings=settings,
+                                    batch_size=episode_batch_size, mesh=mesh)
         with tqdm(total=count, desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})", unit="episode",
                   disable=not progress) as bar:
             out = run_sharded(program, view, episodes, mesh=mesh, bar=bar,
-                              per_device=per_device(count, mesh, episodes_per_device))
+                              per_device=per_device(count, mesh, episode_batch_size))
         for g in range(episodes.openings.shape[1]):  # out: (E, G) each
             results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in out)))
     return results

@@ -4,8 +4,8 @@ An evaluation is a compiled program ``program(shared, batch)``: ``shared`` (the 
 arrays) is replicated on every device, ``batch`` (episodes, touches, queries) is split along its
 leading axis. Inside the program, :func:`over_batch` runs the per-device function on each
 device's slice with ``jax.shard_map`` (no communication: every device computes what one device
-would on its slice). :func:`run_sharded` pads the batch to a multiple of the chunk (devices x
-items per device; copies of the last item), places every chunk with
+would on its slice, :func:`in_batches` of a fixed size). :func:`run_sharded` pads the batch to a
+multiple of the chunk (devices x items per device; copies of the last item), places every chunk with
 ``NamedSharding(mesh, PartitionSpec("batch"))``, calls the program once per chunk (the same
 shapes: one compilation), shows progress per chunk and drops the padding.
 """
@@ -23,6 +23,8 @@ from tqdm.auto import tqdm
 
 BATCH_AXIS = "batch"
 """The mesh axis the batch is split over."""
+BATCHES_PER_CALL = 4
+"""Batches a device computes per call: the progress bar moves once per call."""
 
 
 def batch_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
@@ -41,9 +43,19 @@ def over_batch(local: Callable, mesh: Mesh) -> Callable:
                          out_specs=PartitionSpec(BATCH_AXIS), check_vma=False)
 
 
-def per_device(count: int, mesh: Mesh, at_most: int) -> int:
-    """Items per device per call: ``at_most``, fewer when ``count`` items fill less than one call."""
-    return max(1, min(at_most, math.ceil(count / mesh.devices.size)))
+def in_batches(one: Callable, items, batch_size: int):
+    """``one`` over the leading axis of ``items``, ``batch_size`` at a time (vmapped); 1: one at a
+    time, unbatched. Each item's result depends on ``batch_size`` alone (up to rounding, a vmapped
+    program can differ from an unbatched one), never on how many items or devices there are."""
+    if batch_size == 1:
+        return jax.lax.map(one, items)
+    return jax.lax.map(one, items, batch_size=batch_size)
+
+
+def per_device(count: int, mesh: Mesh, batch_size: int, batches: int = BATCHES_PER_CALL) -> int:
+    """Items per device and call: ``batches`` batches of ``batch_size``, fewer batches when
+    ``count`` items fill less than one call."""
+    return batch_size * max(1, min(batches, math.ceil(count / (mesh.devices.size * batch_size))))
 
 
 def run_sharded(program: Callable, shared, batch, *, mesh: Mesh, per_device: int, bar: tqdm | None = None):
