@@ -21,6 +21,7 @@ object's simulated map (``--object``, built once under ``--work``) or a saved on
     python benchmarks/batch_eval.py --object scissors --json batch_eval.json
     python benchmarks/batch_eval.py scissors.npz --test data/test-scissors --json batch_eval.json
     python benchmarks/batch_eval.py --quick    # smoke run: 4 episodes of 2 grasps, 8 queries, a 20 mm map
+    python benchmarks/batch_eval.py --quick --episodes 32 --queries 64   # the full batch on the 20 mm map
 """
 
 from __future__ import annotations
@@ -49,8 +50,8 @@ def parse_args() -> argparse.Namespace:
     add_map_arguments(parser)
     parser.add_argument("--test", metavar="DIR", help="new-grasps test set of the map's object, 2 fingers "
                                                       "(default: simulate one under --work)")
-    parser.add_argument("--episodes", type=int, default=32, help="episodes of a simulated test set (default 32)")
-    parser.add_argument("--queries", type=int, default=64, help="leave-one-out queries (default 64)")
+    parser.add_argument("--episodes", type=int, help="episodes of a simulated test set (default 32; --quick 4)")
+    parser.add_argument("--queries", type=int, help="leave-one-out queries (default 64; --quick 8)")
     parser.add_argument("--touch-batch-size", type=int, default=8,
                         help="single touches a device localizes at once, vmapped (default 8)")
     parser.add_argument("--episode-batch-size", type=int, default=1,
@@ -60,11 +61,13 @@ def parse_args() -> argparse.Namespace:
                              "the belief: 4)")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip the one-device reference when there are several devices")
-    add_common_arguments(parser, quick="4 episodes of 2 grasps, 8 queries, a 20 mm map, 1 repeat", repeats=2,
-                         seed_help="a simulated test set and the baselines' key")
+    add_common_arguments(parser, quick="4 episodes of 2 grasps, 8 queries (unless given), a 20 mm map, 1 repeat",
+                         repeats=2, seed_help="a simulated test set and the baselines' key")
     args = parser.parse_args()
+    args.episodes = args.episodes or (4 if args.quick else 32)
+    args.queries = args.queries or (8 if args.quick else 64)
     if args.quick:
-        args.episodes, args.queries, args.repeats = min(args.episodes, 4), min(args.queries, 8), 1
+        args.repeats = 1
     return args
 
 
@@ -77,10 +80,11 @@ def evaluations(args, tactile_map, calibration, view, episodes) -> dict:
     batching = {"touch_batch_size": args.touch_batch_size, "episode_batch_size": args.episode_batch_size}
 
     def new_grasps(method, test=episodes, **options):
-        return lambda devices: evaluate_new_grasps(view, test, (method,), devices=devices, **batching, **options)
+        options = {**batching, **options}
+        return lambda devices: evaluate_new_grasps(view, test, (method,), devices=devices, **options)
 
     # The belief's single touches: every touch an episode of its own (one touch fused: the same
-    # work as localizing it alone), so that the fused episodes are timed apart.
+    # work as localizing it alone, as many at once), so that the fused episodes are timed apart.
     alone = episodes.sensor_touches()
 
     def leave_one_out(method):
@@ -90,7 +94,8 @@ def evaluations(args, tactile_map, calibration, view, episodes) -> dict:
 
     return {
         "single touches, CTI-ICP-5": (grasps, "touch", new_grasps("cti-icp-5")),
-        "single touches, belief": (grasps, "touch", new_grasps("belief", alone, single_touches=False)),
+        "single touches, belief": (grasps, "touch", new_grasps("belief", alone, single_touches=False,
+                                                                  episode_batch_size=args.touch_batch_size)),
         "fused episodes, belief, 2 fingers": (episodes.openings.shape[0], "episode",
                                               new_grasps("belief", fingers=2, single_touches=False)),
         "leave-one-out, CTI-ICP-5": (len(queries), "query", leave_one_out("cti-icp-5")),
