@@ -4,7 +4,8 @@ Each valid imprint in turn is the query; the map without it (``exclude``) is sea
 error of an estimate is the RMSE between the held-out imprint's stored cloud at its true and
 at its estimated pose (the paper's metric), plus translation and rotation errors of the
 sensor pose and, given the object's symmetries, the symmetry-aware RMSE. Queries run vmapped
-in fixed-size chunks, so each method compiles once per map size.
+in fixed-size chunks, sharded over the devices (a mesh with one ``batch`` axis), so each method
+compiles once per map size.
 
 The belief also reads the map's surface, which holds every imprint's points: it is rebuilt
 without the queries, fold by fold (``folds`` interleaved folds of the queries, each held out of
@@ -30,6 +31,7 @@ from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
 from tactojax.localize._surface import build_map_surface
 from tactojax.mapping import TactileMap
 
@@ -38,6 +40,9 @@ HISTOGRAM_EDGES_MM = tuple(float(x) for x in np.arange(0.0, 85.0, 5.0))
 
 MAP_FRACTIONS = (0.1, 0.25, 0.5, 0.75, 1.0)
 """Map sizes of the paper's Fig. 7 (fractions of the touches)."""
+
+BELIEF_BATCH_SIZE = 4
+"""Queries a device localizes at once with the belief (vmapped)."""
 
 
 def cloud_rmse(
@@ -126,10 +131,14 @@ def oracle_imprints(
     return indices, eligible[indices]
 
 
-@functools.partial(jax.jit, static_argnames=("method", "settings", "points_per_touch", "oracle"))
-def _baseline_chunk(keys, view, index, clouds, cloud_valid, T_true, max_opening_difference_mm, method, settings,
-                    points_per_touch, oracle):
-    def one(key, exclude, cloud, valid, T):
+@functools.partial(jax.jit,
+                   static_argnames=("method", "settings", "points_per_touch", "oracle", "batch_size", "mesh"))
+def _baseline_queries(shared, queries, method, settings, points_per_touch, oracle, batch_size, mesh):
+    """Baseline estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on each
+    device of ``mesh``."""
+    def one(shared, query):
+        key, view, max_opening_difference_mm = shared
+        exclude, cloud, valid, T = query
         touch = map_touch(view, exclude)
         if oracle and method.kind != "random":
             indices, indices_valid = oracle_imprints(
@@ -138,26 +147,31 @@ def _baseline_chunk(keys, view, index, clouds, cloud_valid, T_true, max_opening_
             points, points_valid = contact_points(touch, view.mm_per_px, points_per_touch)
             estimate = estimate_pose(view, points, points_valid, indices, indices_valid, method, settings=settings)
         else:
-            estimate = baseline_estimate(key, view, touch, method, settings=settings, points_per_touch=points_per_touch,
+            estimate = baseline_estimate(jax.random.fold_in(key, exclude), view, touch, method, settings=settings,
+                                         points_per_touch=points_per_touch,
                                          max_opening_difference_mm=max_opening_difference_mm, exclude=exclude)
         errors = pose_errors(cloud, valid, T, estimate.T_object_sensor, view.symmetries)
         return estimate.T_object_sensor, jnp.float32(jnp.nan), estimate.imprint_index, errors
 
-    return jax.vmap(one)(keys, index, clouds, cloud_valid, T_true)
+    return over_batch(lambda shared, queries: in_batches(lambda q: one(shared, q), queries, batch_size), mesh)(
+        shared, queries)
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
-def _belief_chunk(view, index, clouds, cloud_valid, T_true, settings):
+@functools.partial(jax.jit, static_argnames=("settings", "batch_size", "mesh"))
+def _belief_queries(view, queries, settings, batch_size, mesh):
+    """The belief's estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on
+    each device of ``mesh``."""
     from tactojax.localize._belief import empty_belief, update_belief  # (which imports this module's metric)
 
-    def one(args):
-        exclude, cloud, valid, T = args
+    def one(view, query):
+        exclude, cloud, valid, T = query
         belief = update_belief(view, empty_belief(view, settings), map_touch(view, exclude), jaxlie.SE3.identity(),
                                settings, exclude=exclude)
         errors = pose_errors(cloud, valid, T, belief.best, view.symmetries)
         return belief.best, belief.probability_within(), jnp.int32(-1), errors
 
-    return jax.lax.map(one, (index, clouds, cloud_valid, T_true), batch_size=4)
+    return over_batch(lambda view, queries: in_batches(lambda q: one(view, q), queries, batch_size), mesh)(
+        view, queries)
 
 
 @dataclass
@@ -226,6 +240,7 @@ def evaluate_localization(
     max_opening_difference_mm: float = MAX_OPENING_DIFFERENCE_MM,
     chunk_size: int = 32,
     pad_to_multiple: int = 256,
+    devices=None,
     progress: bool = False,
 ) -> dict[str, LocalizationErrors]:
     """Leave-one-out localization errors of several methods on one map (paper Table III).
@@ -247,10 +262,11 @@ def evaluate_localization(
             most similar (a diagnostic that separates retrieval from registration errors).
         folds: the belief's queries are held out of the map's surface in this many folds.
         max_opening_difference_mm: CTI's opening filter, mm.
-        chunk_size: queries per vmapped batch (fixed: one compilation).
+        chunk_size: queries a device localizes at once with a baseline (vmapped; the belief: 4).
         pad_to_multiple: pad the map with invalid imprints to a multiple of this many, so that
             maps of similar sizes share compilations (1: no padding).
-        progress: show a progress bar.
+        devices: the devices the queries are sharded over (default: every local device).
+        progress: show a progress bar (per chunk).
 
     Returns:
         ``{method name: LocalizationErrors}``.
@@ -268,44 +284,42 @@ def evaluate_localization(
     if len(queries) == 0:
         raise ValueError("no query imprints to evaluate")
     count = len(queries)
+    mesh = batch_mesh(devices)
     results = {}
     for name in methods:
         method = parse_method(name)
-        bar = tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", disable=not progress)
         if method.kind == "belief":
             fold_of = np.arange(count) % max(1, min(folds, count))
             groups = [(np.flatnonzero(fold_of == f), _without(tactile_map, view, queries[fold_of == f]))
                       for f in range(fold_of.max() + 1)]
+            largest = max(len(positions) for positions, _ in groups)  # one shape for every fold
+            batch_size = min(BELIEF_BATCH_SIZE, largest)
+            queries_per_device = per_device(largest, mesh, batch_size)
+            program = functools.partial(_belief_queries, settings=belief_settings, batch_size=batch_size, mesh=mesh)
         else:
             groups = [(np.arange(count), view)]
-        order, outputs = [], []
-        for positions, group_view in groups:
-            chunk = chunk_size if method.kind != "belief" else 4 * max(1, chunk_size // 4)
-            padded = np.concatenate([queries[positions], np.repeat(queries[positions][-1:], -len(positions) % chunk)])
-            for start in range(0, len(padded), chunk):
-                index = jnp.asarray(padded[start:start + chunk], jnp.int32)
-                T_true = jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor)
-                clouds, cloud_valid = tactile_map.points[index], tactile_map.valid[index]
-                if method.kind == "belief":
-                    out = _belief_chunk(group_view, index, clouds, cloud_valid, T_true, belief_settings)
-                else:
-                    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(index)
-                    out = _baseline_chunk(keys, group_view, index, clouds, cloud_valid, T_true,
-                                          jnp.float32(max_opening_difference_mm), method, settings,
-                                          points_per_touch, oracle)
-                outputs.append(jax.device_get(out))
-                bar.update(min(chunk, len(positions) - start))
-            order.append(np.concatenate([positions, np.full(-len(positions) % chunk, -1)]))
-        bar.close()
-        keep = np.concatenate(order)
-        _, probability, imprint_index, errors = jax.tree.map(lambda *x: np.concatenate(x)[keep >= 0], *outputs)
-        position = keep[keep >= 0]
-        unsort = np.argsort(position)
-        errors = {k: v[unsort] for k, v in errors.items()}
+            batch_size = min(chunk_size, count)
+            queries_per_device = per_device(count, mesh, batch_size)
+            program = functools.partial(_baseline_queries, method=method, settings=settings,
+                                        points_per_touch=points_per_touch, oracle=oracle, batch_size=batch_size,
+                                        mesh=mesh)
+        placed, outputs = [], []
+        with tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", unit="query",
+                  disable=not progress) as bar:
+            for positions, group_view in groups:
+                index = jnp.asarray(queries[positions], jnp.int32)
+                batch = (index, tactile_map.points[index], tactile_map.valid[index],
+                         jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor))
+                shared = (group_view if method.kind == "belief"
+                          else (key, group_view, jnp.float32(max_opening_difference_mm)))
+                outputs.append(run_sharded(program, shared, batch, mesh=mesh, per_device=queries_per_device, bar=bar))
+                placed.append(positions)
+        order = np.argsort(np.concatenate(placed))
+        _, probability, imprint_index, errors = jax.tree.map(lambda *x: np.concatenate(x)[order], *outputs)
         results[method.name] = LocalizationErrors(
             method=method.name, queries=queries, rmse=errors["rmse"], translation=errors["translation"],
             rotation=errors["rotation"], symmetric_rmse=errors["symmetric_rmse"],
-            probability=probability[unsort], imprint_index=imprint_index[unsort])
+            probability=probability, imprint_index=imprint_index)
     return results
 
 

@@ -27,6 +27,7 @@ from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
 from tactojax.localize._evaluate import moment_rmse
 from tactojax.localize._map import LocalizationMap, Touch
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
@@ -51,6 +52,16 @@ class TestEpisodes:
     """Mean of every touch's true contact cloud, sensor frame, mm (the error metric)."""
     cloud_covariance: Float[Array, "E G F 3 3"]
     """Its covariance, mm^2."""
+
+    def sensor_touches(self) -> TestEpisodes:
+        """Every grasp's sensor-finger touch (finger 0) as an episode of its own: (E * G, 1, 1) episodes."""
+        def alone(x):
+            return x[:, :, :1].reshape(-1, 1, 1, *x.shape[3:])
+
+        return TestEpisodes(heightmaps=alone(self.heightmaps), masks=alone(self.masks), features=alone(self.features),
+                            openings=self.openings.reshape(-1, 1),
+                            T_object_sensor=jax.tree.map(alone, self.T_object_sensor),
+                            cloud_mean=alone(self.cloud_mean), cloud_covariance=alone(self.cloud_covariance))
 
 
 @dataclass
@@ -154,24 +165,21 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings"))
-def _single_touches(view: LocalizationMap, episodes: TestEpisodes, method, points_per_touch: int,
-                    settings: BeliefSettings):
-    """Every grasp's sensor-finger touch alone: (E * G,) errors."""
-    take = lambda x: x[:, :, 0].reshape(-1, *x.shape[3:])  # noqa: E731
-    heightmaps, masks, features = take(episodes.heightmaps), take(episodes.masks), take(episodes.features)
-    openings = episodes.openings.reshape(-1)
-    T_true = jax.tree.map(take, episodes.T_object_sensor)
-    mean, covariance = take(episodes.cloud_mean), take(episodes.cloud_covariance)
-
-    def one(heightmap, mask, feature, opening, T, m, c):
-        touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
+@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings", "batch_size", "mesh"))
+def _single_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int,
+                    settings: BeliefSettings, batch_size: int, mesh):
+    """Touches localized alone: ``touches`` holds one per item (leading axis T), as (T, 1, 1)
+    episodes; (T,) errors, ``batch_size`` at a time on each device of ``mesh``."""
+    def one(view, touch: TestEpisodes):
+        take = lambda x: x[0, 0]  # noqa: E731
+        T, m, c = jax.tree.map(take, touch.T_object_sensor), take(touch.cloud_mean), take(touch.cloud_covariance)
+        query = episode_touch(touch, 0, 0)
         if method.kind == "belief":
-            belief = update_belief(view, empty_belief(view, settings), touch, jaxlie.SE3.identity(), settings)
+            belief = update_belief(view, empty_belief(view, settings), query, jaxlie.SE3.identity(), settings)
             estimate, probability = belief.best, belief.probability_within()
             nll, covered = belief.truth_scores(T)
         else:
-            estimate = baseline_estimate(jax.random.key(0), view, touch, method,
+            estimate = baseline_estimate(jax.random.key(0), view, query, method,
                                          points_per_touch=points_per_touch).T_object_sensor
             probability, nll, covered = jnp.float32(jnp.nan), jnp.float32(jnp.nan), jnp.bool_(False)
         one_touch = lambda x: x[None]  # noqa: E731
@@ -179,8 +187,8 @@ def _single_touches(view: LocalizationMap, episodes: TestEpisodes, method, point
                          jnp.ones(1, bool), view.symmetries)
         return (*errors, probability, nll, covered)
 
-    return jax.lax.map(lambda args: one(*args), (heightmaps, masks, features, openings, T_true, mean, covariance),
-                       batch_size=8)
+    return over_batch(lambda view, touches: in_batches(lambda t: one(view, t), touches, batch_size), mesh)(
+        view, touches)
 
 
 def episode_touch(episode: TestEpisodes, g, finger: int) -> Touch:
@@ -206,7 +214,6 @@ def fuse_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, set
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
 def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings):
     """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
     grasps = episode.openings.shape[0]
@@ -224,6 +231,17 @@ def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, s
     return fuse_episode(view, episode, fingers, settings, observe)
 
 
+@functools.partial(jax.jit, static_argnames=("fingers", "settings", "batch_size", "mesh"))
+def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int, settings: BeliefSettings,
+                    batch_size: int, mesh):
+    """Every episode's belief after each of its G grasps: (E, G) errors and probabilities,
+    ``batch_size`` episodes at a time on each device of ``mesh``."""
+    def local(view, episodes):
+        return in_batches(lambda episode: _fused_episode(view, episode, fingers, settings), episodes, batch_size)
+
+    return over_batch(local, mesh)(view, episodes)
+
+
 def evaluate_new_grasps(
     view: LocalizationMap,
     episodes: TestEpisodes,
@@ -232,9 +250,18 @@ def evaluate_new_grasps(
     fingers: int = 1,
     settings: BeliefSettings = BeliefSettings(),
     points_per_touch: int = 128,
+    single_touches: bool = True,
+    devices=None,
+    touch_batch_size: int = 8,
+    episode_batch_size: int = 1,
     progress: bool = False,
 ) -> list[EpisodeErrors]:
     """Single-touch errors of every method, and the belief fused over 1..G grasps.
+
+    Touches and episodes run as one compiled program each, their batch sharded over ``devices``
+    (a mesh with one ``batch`` axis), each device localizing ``touch_batch_size`` touches
+    (``episode_batch_size`` episodes) at once, vmapped; the program is called once per chunk of
+    a few such batches per device, which bounds the memory.
 
     Args:
         view: the object's map (its symmetries and calibration are used).
@@ -244,30 +271,45 @@ def evaluate_new_grasps(
         fingers: fingers fused per grasp (1 or 2).
         settings: belief parameters.
         points_per_touch: contact points of the ICP baselines.
-        progress: show progress bars.
+        single_touches: localize every grasp's sensor-finger touch alone with each method
+            (False: only the belief's fused episodes).
+        devices: the devices the batch is sharded over (default: every local device).
+        touch_batch_size, episode_batch_size: single touches and fused episodes a device
+            localizes at once (vmapped; 1: one at a time). The results do not depend on the
+            devices; they can move by rounding with these sizes, and the belief's discrete choices
+            can follow (episodes go one at a time by default: the reference results).
+        progress: show progress bars (per chunk).
 
     Returns:
-        one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1),
-        then, for the belief, one per number of fused grasps with ``fingers`` fingers.
+        one :class:`EpisodeErrors` per method for single touches (``grasps`` 1, ``fingers`` 1;
+        if ``single_touches``), then, for the belief, one per number of fused grasps with
+        ``fingers`` fingers.
     """
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
+    mesh = batch_mesh(devices)
+    touches = episodes.sensor_touches()
+    count = touches.openings.shape[0]
+    touch_batch_size = min(touch_batch_size, count)  # (a small test set: no padded batch)
     results = []
-    for name in tqdm(methods, desc="single touches", disable=not progress):
+    for name in methods if single_touches else ():  # the touches: (E * G, 1, 1) episodes
         method = parse_method(name)
-        out = jax.device_get(_single_touches(view, episodes, method, points_per_touch, settings))
-        results.append(EpisodeErrors(method.name, 1, 1, False, *(np.asarray(x) for x in out)))
+        program = functools.partial(_single_touches, method=method, points_per_touch=points_per_touch,
+                                    settings=settings, batch_size=touch_batch_size, mesh=mesh)
+        with tqdm(total=count, desc=f"single touches ({method.name})", unit="touch", disable=not progress) as bar:
+            out = run_sharded(program, view, touches, mesh=mesh, bar=bar,
+                              per_device=per_device(count, mesh, touch_batch_size))
+        results.append(EpisodeErrors(method.name, 1, 1, False, *out))
     if any(parse_method(name).kind == "belief" for name in methods):
-        count, grasps = episodes.openings.shape
-        per_episode = []
-        for e in tqdm(range(count), desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})",
-                      disable=not progress):
-            episode = jax.tree.map(lambda x: x[e], episodes)
-            per_episode.append(jax.device_get(_fused_episode(view, episode, fingers, settings)))
-        stacked = [np.stack([p[i] for p in per_episode]) for i in range(7)]  # (E, G) each
-        for g in range(grasps):
-            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in stacked)))
+        count = episodes.openings.shape[0]
+        episode_batch_size = min(episode_batch_size, count)
+        program = functools.partial(_fused_episodes, fingers=fingers, settings=settings,
+                                    batch_size=episode_batch_size, mesh=mesh)
+        with tqdm(total=count, desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})", unit="episode",
+                  disable=not progress) as bar:
+            out = run_sharded(program, view, episodes, mesh=mesh, bar=bar,
+                              per_device=per_device(count, mesh, episode_batch_size))
+        for g in range(episodes.openings.shape[1]):  # out: (E, G) each
+            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in out)))
     return results
-
-

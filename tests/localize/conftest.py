@@ -115,6 +115,35 @@ def ridges_view(ridges_map, bumps_view):
     return view.replace(surface=build_map_surface(ridges_map, SURFACE, grid_like=bumps_view.surface))
 
 
+EPISODE_PLACES = [[(-2.0, 1.0, 0.0), (3.0, -2.5, 5.0)], [(1.5, -1.0, -4.0), (-4.5, 2.5, 3.0)]]
+"""Two episodes of two grasps (x, y, yaw) on the bumps, between the map's presses."""
+
+
+@pytest.fixture(scope="session")
+def bumps_episodes():
+    """New grasps on the bumps: :data:`EPISODE_PLACES` as :class:`~tactojax.localize.evaluation.TestEpisodes`
+    of one finger (true contact clouds from the rendered heightmaps)."""
+    from tactojax.localize.evaluation import TestEpisodes
+
+    touches, poses, means, covariances = [], [], [], []
+    for episode in EPISODE_PLACES:
+        for x, y, yaw in episode:
+            T = sensor_pose(x, y, yaw)
+            one = touch(bumps, T)
+            xy = np.asarray(pixel_grid(*one.heightmap.shape, MM_PER_PX))[np.asarray(one.mask)]
+            cloud = np.concatenate([xy, -np.asarray(one.heightmap)[np.asarray(one.mask)][:, None]], axis=1)
+            touches.append(one)
+            poses.append(T.wxyz_xyz)
+            means.append(cloud.mean(0))
+            covariances.append(np.cov(cloud.T, bias=True))
+    shape = (len(EPISODE_PLACES), len(EPISODE_PLACES[0]), 1)
+    stack = lambda values: jnp.asarray(np.stack(values)).reshape(*shape, *np.shape(values[0]))  # noqa: E731
+    return TestEpisodes(
+        heightmaps=stack([t.heightmap for t in touches]), masks=stack([t.mask for t in touches]),
+        features=stack([t.feature for t in touches]), openings=jnp.full(shape[:2], 20.0),
+        T_object_sensor=jaxlie.SE3(stack(poses)), cloud_mean=stack(means), cloud_covariance=stack(covariances))
+
+
 @pytest.fixture(scope="session")
 def synthetic():
     """The helpers above (test modules cannot import a conftest)."""

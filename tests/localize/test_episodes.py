@@ -1,43 +1,15 @@
 """New grasps: the evaluation's single touches, fused episodes and calibration records agree with one another."""
 
-import jax.numpy as jnp
-import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.geometry import pixel_grid
-import tactojax.localize
-from tactojax.localize.evaluation import evaluate_new_grasps, record_beliefs
 from tactojax.localize._calibrate import predict_within
-
-PLACES = [[(-2.0, 1.0, 0.0), (3.0, -2.5, 5.0)], [(1.5, -1.0, -4.0), (-4.5, 2.5, 3.0)]]
-"""Two episodes of two grasps (x, y, yaw) on the bumps, between the map's presses."""
-
-
-@pytest.fixture(scope="module")
-def episodes(synthetic):
-    touches, poses, means, covariances = [], [], [], []
-    for episode in PLACES:
-        for x, y, yaw in episode:
-            T = synthetic.sensor_pose(x, y, yaw)
-            touch = synthetic.touch(synthetic.bumps, T)
-            xy = np.asarray(pixel_grid(*touch.heightmap.shape, 0.5))[np.asarray(touch.mask)]
-            cloud = np.concatenate([xy, -np.asarray(touch.heightmap)[np.asarray(touch.mask)][:, None]], axis=1)
-            touches.append(touch)
-            poses.append(T.wxyz_xyz)
-            means.append(cloud.mean(0))
-            covariances.append(np.cov(cloud.T, bias=True))
-    shape = (len(PLACES), len(PLACES[0]), 1)
-    stack = lambda values: jnp.asarray(np.stack(values)).reshape(*shape, *np.shape(values[0]))  # noqa: E731
-    # (TestEpisodes is not imported by name: pytest would try to collect it)
-    return tactojax.localize.evaluation.TestEpisodes(
-        heightmaps=stack([t.heightmap for t in touches]), masks=stack([t.mask for t in touches]),
-        features=stack([t.feature for t in touches]), openings=jnp.full(shape[:2], 20.0),
-        T_object_sensor=jaxlie.SE3(stack(poses)), cloud_mean=stack(means), cloud_covariance=stack(covariances))
+from tactojax.localize.evaluation import evaluate_new_grasps, record_beliefs
 
 
 @pytest.mark.slow  # three programs compiled for one check (~2 min); tests/cli/test_belief_cli.py runs the evaluation
-def test_single_touches_fused_episodes_and_calibration_records_agree(bumps_view, episodes, belief_settings):
+def test_single_touches_fused_episodes_and_calibration_records_agree(bumps_view, bumps_episodes, belief_settings):
+    episodes = bumps_episodes  # two episodes of two grasps, one finger
     single, *fused = evaluate_new_grasps(bumps_view, episodes, ("belief",), settings=belief_settings)
     assert (single.grasps, single.fused) == (1, False) and [f.grasps for f in fused] == [1, 2]
     assert single.rmse.shape == (4,) and all(f.rmse.shape == (2,) for f in fused)
