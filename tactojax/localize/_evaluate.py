@@ -279,13 +279,14 @@ def evaluate_localization(
         else:
             groups = [(np.arange(count), view)]
         order, outputs = [], []
+        map_points = tactile_map.points  # decoded once (the map stores pixels)
         for positions, group_view in groups:
             chunk = chunk_size if method.kind != "belief" else 4 * max(1, chunk_size // 4)
             padded = np.concatenate([queries[positions], np.repeat(queries[positions][-1:], -len(positions) % chunk)])
             for start in range(0, len(padded), chunk):
                 index = jnp.asarray(padded[start:start + chunk], jnp.int32)
                 T_true = jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor)
-                clouds, cloud_valid = tactile_map.points[index], tactile_map.valid[index]
+                clouds, cloud_valid = map_points[index], tactile_map.valid[index]
                 if method.kind == "belief":
                     out = _belief_chunk(group_view, index, clouds, cloud_valid, T_true, belief_settings)
                 else:
