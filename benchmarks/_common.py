@@ -161,47 +161,51 @@ def mapping_grid(args: argparse.Namespace) -> float:
     return QUICK_GRID_MM if args.quick else GRID_MM
 
 
-def object_map(work, name: str, model, model_name: str, encoder, encoder_name: str, *, grid_mm: float = GRID_MM):
+def object_map(work, name: str, model, model_name: str, encoder, encoder_name: str, *, grid_mm: float = GRID_MM,
+               images: bool = False):
     """The tactile map of catalog object ``name`` with retrieval features: the mapping protocol
     simulated (:func:`simulated`), mapped by ``model`` and encoded by ``encoder`` once, saved
     under ``work`` and read from there afterwards (keyed by the object, grid, model and encoder
-    names). One map for every script: ``--seed`` draws what a script does with it, not the map."""
+    names). One map for every script: ``--seed`` draws what a script does with it, not the map.
+    ``images``: a cached map is read with its tactile images (a fresh one holds them anyway)."""
     tag = f"map-grid{grid_mm:g}"
     cached = Path(work) / f"{name}-{tag}-{_slug(model_name)}-{_slug(encoder_name)}.npz"
     if cached.exists():
-        return load_tactile_map(cached)
+        return load_tactile_map(cached, images=images)
     dataset = simulated(work, name, MappingProtocol(grid_mm=grid_mm), tag)
     grasps = read_grasps(dataset)
     tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"], name,
                                     T_world_object=grasps["T_world_object"])
-    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     save_tactile_map(cached, tactile_map, metadata={"data": str(dataset), "model": model_name,
                                                     "encoder": encoder_name})
     return tactile_map
 
 
-def saved_map(path, encoder, encoder_name: str):
+def saved_map(path, encoder, encoder_name: str, *, images: bool = False):
     """A saved map with features of ``encoder`` (those it stores when it says they come from
     that encoder, else encoded now) and its stored belief calibration when fit with that
-    encoder (None: uncalibrated)."""
-    tactile_map = load_tactile_map(path)
+    encoder (None: uncalibrated). ``images``: read its tactile images too."""
+    tactile_map = load_tactile_map(path, images=images)
     metadata = tactile_map_metadata(path).get("metadata", {})
     stored = metadata.get("belief_calibration")
     source = metadata.get("encoder", (stored or {}).get("encoder"))
-    if tactile_map.features.shape[1] == 0 or source != encoder_name:
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+    if tactile_map.features.shape[1] == 0 or source != encoder_name:  # encoded anew: the images are needed
+        images = load_tactile_map(path, images=True).stored_images()
+        tactile_map = tactile_map.with_features(encode_images(encoder, images, progress=True))
     usable = stored is not None and stored.get("encoder", encoder_name) == encoder_name
     return tactile_map, (calibration_from_json(stored) if usable else None)
 
 
-def load_maps(args: argparse.Namespace, model, encoder) -> list[tuple[Any, Any]]:
+def load_maps(args: argparse.Namespace, model, encoder, *, images: bool = False) -> list[tuple[Any, Any]]:
     """(map with features, belief calibration or None) for every map the command line names, or
-    for ``--object`` simulated and mapped (:func:`object_map`, uncalibrated)."""
+    for ``--object`` simulated and mapped (:func:`object_map`, uncalibrated); with ``images``,
+    the maps hold their tactile images."""
     paths = map_paths(args)
     if paths:
-        return [saved_map(path, encoder, args.encoder) for path in paths]
+        return [saved_map(path, encoder, args.encoder, images=images) for path in paths]
     return [(object_map(args.work, args.object, model, args.model, encoder, args.encoder,
-                        grid_mm=mapping_grid(args)), None)]
+                        grid_mm=mapping_grid(args), images=images), None)]
 
 
 def new_grasps_set(args: argparse.Namespace, name: str, *, episodes: int, grasps: int, fingers: int) -> Path:

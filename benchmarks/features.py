@@ -137,7 +137,7 @@ def per_object(args, maps: list, encoders: dict) -> dict:
             queries = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
         per_encoder = {}
         for name, encoder in encoders.items():
-            featured = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=True))
+            featured = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
             entry = {"recall": retrieval_recall(featured, queries, RECALL_AT)}
             if not args.no_localization:
                 entry["leave_one_out"] = leave_one_out(featured, queries)
@@ -174,11 +174,11 @@ def print_results(args, speed: dict, objects: dict, image_shape) -> None:
 def main() -> None:
     args = parse_args()
     if map_paths(args):
-        maps = [load_tactile_map(path) for path in map_paths(args)]
+        maps = [load_tactile_map(path, images=True) for path in map_paths(args)]
     else:  # --object, simulated and mapped (its features are replaced by each encoder's below)
         maps = [m for m, _ in load_maps(args, resolve_shape_model(args.model), resolve_encoder(args.encoder))]
     encoders = {name: resolve_encoder(name) for name in args.encoders}
-    image = np.asarray(maps[0].images[0])
+    image = np.asarray(maps[0].stored_images()[0])
     rounds = max(1, args.repeats // CALLS_PER_ROUND)
     speed = encoder_speed(encoders, image, rounds=rounds, calls=min(args.repeats, CALLS_PER_ROUND))
     objects = per_object(args, maps, encoders)

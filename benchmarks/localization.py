@@ -108,7 +108,7 @@ class Stages:
 
 def stage_timings(model, encoder, tactile_map, view, stages: Stages, index: int) -> dict:
     """(first call incl. compile, steady median) seconds of every stage on imprint ``index``."""
-    image = jnp.asarray(tactile_map.images[index], jnp.float32) / 255.0
+    image = jnp.asarray(tactile_map.stored_images()[index], jnp.float32) / 255.0
     query = map_touch(view, index)
     timings = {"heightmap": timed(lambda: predict(model, image), 50),
                "features": timed(lambda: encode_image(encoder, image), 50),
@@ -193,7 +193,7 @@ def main() -> None:
             print(f"Open3D reference left out: {error}")
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0].device_kind})")
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
-    ((tactile_map, _),) = load_maps(args, model, encoder)
+    ((tactile_map, _),) = load_maps(args, model, encoder, images=True)  # the stage timings start from an image
     view, settings, method = LocalizationMap.from_tactile_map(tactile_map), IcpSettings(), f"cti-icp-{args.n}"
     valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
     print(f"map: {tactile_map.object_id}, {len(tactile_map)} imprints ({len(valid)} with contact)")

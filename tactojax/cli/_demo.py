@@ -159,7 +159,7 @@ def _maps(args, spec, model, encoder, out: Path):
         grasps = read_grasps(dataset)
         tactile_map = build_tactile_map(model, grasps["images"], grasps["T_world_gripper"], grasps["openings"], name,
                                         T_world_object=grasps["T_world_object"], points_per_imprint=512)
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images))
+        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images()))
         save_tactile_map(out / "maps" / f"{name}.npz", tactile_map, metadata={"model": args.model, "encoder": args.encoder})
         points, _ = stitched_point_cloud(tactile_map)
         distance = surface_distance(obj, points)["mean"] if len(points) else float("nan")

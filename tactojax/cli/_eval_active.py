@@ -77,9 +77,9 @@ def run(args) -> int:
         sensor = tactile_map.sensor or "gelslim"
         full = sensor_preset(sensor) if sensor in SENSOR_PRESETS else sensor_preset("gelslim")
         spec = sensor_preset(full.name if sensor in SENSOR_PRESETS else "gelslim",
-                             scale=tactile_map.heightmaps.shape[2] / full.width_px)
-        if abs(spec.mm_per_px - tactile_map.mm_per_px) > 1e-6 or model.image_shape != tuple(tactile_map.heightmaps.shape[1:]):
-            raise ValueError(f"{path}: the map's sensor ({tactile_map.heightmaps.shape[1:]} px at "
+                             scale=tactile_map.image_shape[1] / full.width_px)
+        if abs(spec.mm_per_px - tactile_map.mm_per_px) > 1e-6 or model.image_shape != tactile_map.image_shape:
+            raise ValueError(f"{path}: the map's sensor ({tactile_map.image_shape} px at "
                              f"{tactile_map.mm_per_px} mm/px) does not match the simulated one or the shape model")
         symmetries = object_symmetries(tactile_map.object_id)
         view = LocalizationMap.from_tactile_map(tactile_map, calibration=stored_calibration(path, args.encoder),

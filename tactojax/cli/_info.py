@@ -1,4 +1,6 @@
-"""``tactojax info DIR``: what a dataset holds (counts per object, image size, sensor), or a map catalog."""
+"""``tactojax info DIR|MAP``: what a dataset holds (counts per object, image size, sensor), a map
+catalog (its maps, sizes and build times), or where a tactile map's bytes are (per field, in memory
+and on disk, per imprint)."""
 
 from __future__ import annotations
 
@@ -6,10 +8,13 @@ from tactojax.cli._table import format_table, write_json
 
 
 def add_parser(commands) -> None:
-    parser = commands.add_parser("info", help="summarise a dataset or a map catalog, or list the object catalog",
+    parser = commands.add_parser("info", help="summarise a dataset, a map catalog or a tactile map, or list the "
+                                              "object catalog",
                                  description="Counts per object, image size and sensor of a dataset; the maps, "
-                                             "sizes and build times of a map catalog (`tactojax map-catalog`).")
-    parser.add_argument("dataset", nargs="?", help="dataset or map-catalog directory")
+                                             "sizes and build times of a map catalog (`tactojax map-catalog`); for a "
+                                             "tactile map (.npz), its bytes per imprint, per field, in memory and on "
+                                             "disk.")
+    parser.add_argument("dataset", nargs="?", help="dataset or map-catalog directory, or a tactile map (.npz)")
     parser.add_argument("--json", metavar="PATH", help="also write the summary as JSON")
     parser.add_argument("--objects", action="store_true", help="list the built-in object catalog")
     parser.add_argument("--ycb", choices=["all", "training"],
@@ -28,6 +33,10 @@ def run(args) -> int:
         return 0
     if not args.dataset:
         raise ValueError("give a dataset directory, or --objects to list the catalog (--ycb the YCB scans)")
+    from pathlib import Path
+
+    if Path(args.dataset).is_file():
+        return _map_bytes(args)
     from tactojax.io import dataset_summary, is_catalog, read_catalog
 
     if is_catalog(args.dataset):
@@ -55,6 +64,23 @@ def run(args) -> int:
     if groups:
         print()
         print(format_table(["object", "imprints"], [[name, count] for name, count in sorted(groups.items())]))
+    if args.json:
+        write_json(args.json, summary)
+    return 0
+
+
+def _map_bytes(args) -> int:
+    from tactojax.io import tactile_map_bytes
+
+    summary = tactile_map_bytes(args.dataset)
+    count = max(summary["imprints"], 1)
+    rows = [[name, f"{field['memory'] / count:,.0f}", "-" if field["disk"] is None else f"{field['disk'] / count:,.0f}"]
+            for name, field in sorted(summary["fields"].items(), key=lambda item: -item[1]["memory"])]
+    rows.append(["total", f"{summary['memory_bytes'] / count:,.0f}", f"{summary['file_bytes'] / count:,.0f}"])
+    print(f"map       {args.dataset}: {summary['object_id']}, {summary['imprints']} imprints, format version "
+          f"{summary['version']}")
+    print(f"memory    {summary['loaded_bytes'] / count:,.0f} bytes per imprint as loaded (without images)")
+    print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:
         write_json(args.json, summary)
     return 0

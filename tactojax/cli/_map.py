@@ -23,6 +23,9 @@ def add_parser(commands) -> None:
                              "realistic or high (see tactojax.mapping.NOISE_LEVELS)")
     parser.add_argument("--ply", metavar="PATH", help="also export the stitched point cloud")
     parser.add_argument("--voxel-mm", type=float, default=0.5, help="PLY voxel size, mm")
+    parser.add_argument("--keep-images", action="store_true",
+                        help="keep the tactile images in the map (about 58 kB per imprint; needed only to encode "
+                             "features with another encoder later)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
     parser.set_defaults(run=run)
@@ -31,7 +34,8 @@ def add_parser(commands) -> None:
 def run(args) -> int:
     import jax
 
-    from tactojax.io import export_ply, read_grasps, resolve_shape_model, save_tactile_map
+    from tactojax.features import encode_images
+    from tactojax.io import DEFAULT_ENCODER, export_ply, read_grasps, resolve_encoder, resolve_shape_model, save_tactile_map
     from tactojax.mapping import NOISE_LEVELS, build_tactile_map, perturb_kinematics
 
     if args.kinematic_noise not in NOISE_LEVELS:
@@ -52,8 +56,13 @@ def run(args) -> int:
     tactile_map = build_tactile_map(model, grasps["images"], T_world_gripper, openings, grasps["object_id"],
                                     T_world_object=grasps["T_world_object"], points_per_imprint=args.points,
                                     key=sample_key, progress=not args.no_progress)
+    # The retrieval features, once, from the images (a compact map keeps no images).
+    features = encode_images(resolve_encoder(DEFAULT_ENCODER), tactile_map.stored_images(), progress=not args.no_progress)
+    tactile_map = tactile_map.with_features(features)
+    if not args.keep_images:
+        tactile_map = tactile_map.replace(images=None)
     metadata = {"data": args.data, "model": args.model, "kinematic_noise": args.kinematic_noise,
-                "seed": args.seed}
+                "seed": args.seed, "features_encoder": DEFAULT_ENCODER}
     save_tactile_map(args.out, tactile_map, metadata=metadata)
     rows = [["object", tactile_map.object_id], ["imprints", len(tactile_map)],
             ["with contact", int(tactile_map.imprint_valid.sum())],

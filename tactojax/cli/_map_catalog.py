@@ -20,13 +20,13 @@ def add_parser(commands) -> None:
     parser = commands.add_parser(
         "map-catalog", help="simulate and map many objects into a catalog directory (resumable)",
         description="For every object: simulate the paper's mapping protocol, build its tactile map with "
-                    "MODEL (predicted heightmaps), store the retrieval features of ENCODER, and list it "
-                    "in DIR/catalog.json. An object already built is skipped, so an interrupted run "
-                    "goes on where it stopped; an object that cannot be mapped (the gripper cannot "
-                    "grasp it, its mesh does not load) is listed with the reason and the others go "
-                    "on. identify, localize, localize-live and eval-localization take DIR where they "
-                    "take maps. Objects are built one after the other: each stage already uses every "
-                    "core.")
+                    "MODEL (predicted heightmaps), store the retrieval features of ENCODER (the images are "
+                    "dropped unless --keep-images), and list it in DIR/catalog.json. An object already built "
+                    "is skipped, so an interrupted run goes on where it stopped; an object that cannot be "
+                    "mapped (the gripper cannot grasp it, its mesh does not load) is listed with the reason "
+                    "and the others go on. identify, localize, localize-live and eval-localization take DIR "
+                    "where they take maps. Objects are built one after the other: each stage already uses "
+                    "every core.")
     parser.add_argument("objects", nargs="+", metavar="OBJECT",
                         help="catalog names, ycb:ID, ycb:all (every YCB scan), ycb:training (those the "
                              "encoder may see) or mesh paths")
@@ -42,6 +42,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--encoder", default=None, help="feature encoder stored with the maps (default: the bundled one)")
     parser.add_argument("--points", type=int, default=1024, help="contact points kept per imprint")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--keep-images", action="store_true",
+                        help="keep the tactile images in the maps (features from another encoder need them)")
     parser.add_argument("--keep-data", action="store_true", help="keep each object's simulated dataset "
                                                                  f"(under DIR/{DATA_FOLDER})")
     parser.add_argument("--no-progress", action="store_true")
@@ -129,6 +131,8 @@ def _build_object(name: str, out: Path, model, encoder, args) -> dict:
                                     grasps["object_id"], T_world_object=grasps["T_world_object"],
                                     points_per_imprint=args.points, key=jax.random.key(args.seed), progress=progress)
     tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=progress))
+    if not args.keep_images:  # the features are stored: localization needs the images no more
+        tactile_map = tactile_map.replace(images=None)
     path = save_tactile_map(out / f"{slug}.npz", tactile_map, metadata={
         "data": f"{name} (mapping protocol, grid {protocol.grid_mm:g} mm)", "model": args.model,
         "encoder": args.encoder, "seed": args.seed})

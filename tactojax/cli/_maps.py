@@ -28,7 +28,8 @@ def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool =
     if encoder_name is None and stored:
         return maps, None
     encoder = resolve_encoder(encoder_name or DEFAULT_ENCODER)
-    maps = [m.with_features(encode_images(encoder, m.images, progress=progress)) for m in maps]
+    maps = [load_tactile_map(path, images=True) for path in paths]  # encoding needs the images
+    maps = [m.with_features(encode_images(encoder, m.stored_images(), progress=progress)) for m in maps]
     return maps, encoder
 
 

@@ -22,12 +22,16 @@ from tactojax.io._catalog import expand_catalogs as expand_catalogs
 from tactojax.io._catalog import is_catalog as is_catalog
 from tactojax.io._catalog import read_catalog as read_catalog
 from tactojax.io._catalog import write_catalog as write_catalog
+from tactojax.io._map import MAP_VERSION as MAP_VERSION
 from tactojax.io._map import CorruptMapError as CorruptMapError
+from tactojax.io._map import compact_tactile_map as compact_tactile_map
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
 from tactojax.io._map import load_tactile_map as load_tactile_map
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
+from tactojax.io._map import stored_features_encoder as stored_features_encoder
+from tactojax.io._map import tactile_map_bytes as tactile_map_bytes
 from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
 from tactojax.io._presses import load_ball_presses as load_ball_presses
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
@@ -91,6 +95,7 @@ __all__ = [
     "bundled_shape_models",
     "check_mesh",
     "ChunkProblem",
+    "compact_tactile_map",
     "CorruptCheckpointError",
     "CorruptChunkError",
     "CorruptDatasetError",
@@ -119,6 +124,7 @@ __all__ = [
     "load_torch_state_dict",
     "load_touches",
     "load_train_state",
+    "MAP_VERSION",
     "MESH_UNITS_TO_MM",
     "MeshRepair",
     "MeshRepairedWarning",
@@ -136,6 +142,8 @@ __all__ = [
     "save_tactile_map",
     "save_train_state",
     "shape_model_metadata",
+    "stored_features_encoder",
+    "tactile_map_bytes",
     "tactile_map_metadata",
     "taxim_calibration_dir",
     "TAXIM_SENSORS",

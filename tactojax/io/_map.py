@@ -1,12 +1,18 @@
 """Tactile maps on disk, and their export as a PLY point cloud.
 
 Map format (compressed ``.npz``, read with ``allow_pickle=False``, written atomically): a zip of numpy
-arrays, one per :class:`~tactojax.mapping.TactileMap` field, plus ``header``, a JSON string:
-``{"format": "tactojax-tactile-map", "version": 1, "object_id", "mm_per_px", "sensor",
-"metadata": {...}}``. Arrays: ``images`` (K, H, W, 3) uint8; ``heightmaps`` (K, H, W) float32
-mm; ``masks`` (K, H, W) bool; ``points``/``normals`` (K, P, 3) float32, sensor frame;
-``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32 (quaternion wxyz, then xyz in mm);
-``openings`` (K,) float32 mm; ``features`` (K, F) float32; ``imprint_valid`` (K,) bool.
+arrays plus ``header``, a JSON string: ``{"format": "tactojax-tactile-map", "version": 2,
+"object_id", "mm_per_px", "sensor", "metadata": {...}}``. Version 2 (compact) arrays, one per stored
+:class:`~tactojax.mapping.TactileMap` field: ``packed_heightmaps`` (K, H, W) float16 mm with the
+contact mask in the sign bit; ``point_pixels`` (K, P) uint16 (int32 past 65536 pixels), the
+contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32
+(quaternion wxyz, then xyz in mm); ``openings`` (K,) float32 mm; ``features`` (K, F) float32;
+``imprint_valid`` (K,) bool; and, only when kept, ``images`` (K, H, W, 3) uint8. The metadata's
+``features_encoder`` names the encoder of the stored features.
+
+Version 1 (read, converted on loading): ``images``; ``heightmaps`` (K, H, W) float32; ``masks``
+(K, H, W) bool; ``points``/``normals`` (K, P, 3) float32, sensor frame (points on the pixel grid);
+and ``valid``, ``T_object_sensor``, ``openings``, ``features``, ``imprint_valid`` as in version 2.
 
 PLY export: binary little-endian vertices ``x y z nx ny nz`` (float32, mm, object frame).
 """
@@ -17,22 +23,27 @@ import json
 import zipfile
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
 from tactojax.storage._atomic import atomic_open
 from tactojax.storage._dataset import open_dataset
-from tactojax.mapping import TactileMap, stitched_point_cloud
+from tactojax.mapping import TactileMap, pack_heightmaps, points_to_pixels, stitched_point_cloud
 
 MAP_FORMAT = "tactojax-tactile-map"
-MAP_VERSION = 1
+MAP_VERSION = 2
+"""The version :func:`save_tactile_map` writes; :func:`load_tactile_map` reads 1 and 2."""
 
+_COMMON = {"valid": np.bool_, "T_object_sensor": np.float32, "openings": np.float32, "features": np.float32,
+           "imprint_valid": np.bool_}
 _DTYPES = {
-    "images": np.uint8, "heightmaps": np.float32, "masks": np.bool_, "points": np.float32,
-    "normals": np.float32, "valid": np.bool_, "T_object_sensor": np.float32,
-    "openings": np.float32, "features": np.float32, "imprint_valid": np.bool_,
+    1: {"images": np.uint8, "heightmaps": np.float32, "masks": np.bool_, "points": np.float32,
+        "normals": np.float32, **_COMMON},
+    2: {"packed_heightmaps": np.float16, "point_pixels": [np.uint16, np.int32], **_COMMON},
 }
+_OPTIONAL = {"images": np.uint8}  # version 2
 
 
 class CorruptMapError(ValueError):
@@ -40,7 +51,8 @@ class CorruptMapError(ValueError):
 
 
 def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = None) -> Path:
-    """Write a map atomically (see the module docstring for the format).
+    """Write a map atomically in the compact format (see the module docstring), with its images
+    when it holds them.
 
     Args:
         path: destination ``.npz`` file.
@@ -50,66 +62,105 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     header = {"format": MAP_FORMAT, "version": MAP_VERSION, "object_id": tactile_map.object_id,
               "mm_per_px": tactile_map.mm_per_px, "sensor": tactile_map.sensor,
               "metadata": metadata or {}}
-    arrays = {name: np.asarray(getattr(tactile_map, name), dtype) for name, dtype in _DTYPES.items()
+    arrays = {name: np.asarray(getattr(tactile_map, name)) for name in _DTYPES[MAP_VERSION]
               if name != "T_object_sensor"}
     arrays["T_object_sensor"] = np.asarray(tactile_map.T_object_sensor.wxyz_xyz, np.float32)
+    if tactile_map.images is not None:
+        arrays["images"] = np.asarray(tactile_map.images, np.uint8)
     path = Path(path)
     with atomic_open(path, "wb") as handle:
         np.savez_compressed(handle, header=np.array(json.dumps(header)), **arrays)
     return path
 
 
-def _read_npz(path: Path, *, arrays: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
+def _read_npz(path: Path, *, arrays: bool = True, images: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
     """(header, arrays) of a map file; ``arrays=False`` reads only the header (no decompression
-    of the images and heightmaps)."""
+    of the images and heightmaps), ``images=False`` all but the images."""
     if not path.is_file():
         raise FileNotFoundError(f"no tactile map at {path}")
     try:
         with np.load(path, allow_pickle=False) as npz:
             header = json.loads(str(npz["header"]))
-            contents = {name: npz[name] for name in npz.files if name != "header"} if arrays else {}
+            wanted = [name for name in npz.files if name != "header" and (images or name != "images")]
+            contents = {name: npz[name] for name in wanted} if arrays else {}
     except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError) as error:
         raise CorruptMapError(f"{path} is not a readable tactile map ({error})") from None
     if not isinstance(header, dict) or header.get("format") != MAP_FORMAT:
         raise CorruptMapError(f"{path} is not a {MAP_FORMAT} file")
-    if header.get("version") != MAP_VERSION:
+    if header.get("version") not in _DTYPES:
         raise CorruptMapError(f"{path}: unsupported tactile map version {header.get('version')}")
     return header, contents
 
 
-def _check_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    missing = sorted(set(_DTYPES) - set(arrays))
+def _check_arrays(path: Path, version: int, arrays: dict[str, np.ndarray]) -> None:
+    dtypes = _DTYPES[version] | (_OPTIONAL if "images" in arrays else {})
+    missing = sorted(set(dtypes) - set(arrays) - {"images"})
     if missing:
         raise CorruptMapError(f"{path}: missing arrays {missing}")
-    wrong_type = [name for name, dtype in _DTYPES.items() if arrays[name].dtype != dtype]
+    present = [name for name in dtypes if name in arrays]
+    wrong_type = [name for name in present if arrays[name].dtype not in np.atleast_1d(dtypes[name])]
     if wrong_type:
         raise CorruptMapError(f"{path}: wrong data type for {wrong_type}")
-    if arrays["heightmaps"].ndim != 3 or arrays["points"].ndim != 3 or arrays["features"].ndim != 2:
+    heights, points = ("heightmaps", "points") if version == 1 else ("packed_heightmaps", "point_pixels")
+    if arrays[heights].ndim != 3 or arrays[points].ndim != 3 - (version == 2) or arrays["features"].ndim != 2:
         raise CorruptMapError(f"{path}: heightmaps, points or features have the wrong rank")
-    count, height, width = arrays["heightmaps"].shape
-    points, features = arrays["points"].shape[1], arrays["features"].shape[1]
+    count, height, width = arrays[heights].shape
+    points, features = arrays[points].shape[1], arrays["features"].shape[1]
     expected = {
         "images": (count, height, width, 3), "masks": (count, height, width),
-        "points": (count, points, 3), "normals": (count, points, 3), "valid": (count, points),
-        "T_object_sensor": (count, 7), "openings": (count,), "features": (count, features),
-        "imprint_valid": (count,),
+        "points": (count, points, 3), "normals": (count, points, 3), "point_pixels": (count, points),
+        "valid": (count, points), "T_object_sensor": (count, 7), "openings": (count,),
+        "features": (count, features), "imprint_valid": (count,),
     }
     wrong = [f"{name} {arrays[name].shape} (expected {shape})" for name, shape in expected.items()
-             if arrays[name].shape != shape]
+             if name in arrays and arrays[name].shape != shape]
     if wrong:
         raise CorruptMapError(f"{path}: array shapes disagree: {'; '.join(wrong)}")
+    if version == 2 and arrays["point_pixels"].size and int(arrays["point_pixels"].max()) >= height * width:
+        raise CorruptMapError(f"{path}: point_pixels index past the {height} x {width} image")
 
 
-def load_tactile_map(path) -> TactileMap:
-    """Read a map written by :func:`save_tactile_map`; clear errors for anything else."""
+def _compact_arrays(path: Path, header: dict, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A version-1 file's arrays in the version-2 layout (heightmaps packed, points as pixels)."""
+    heightmaps, masks, points = arrays.pop("heightmaps"), arrays.pop("masks"), arrays.pop("points")
+    del arrays["normals"]  # recomputed from the heightmaps at the points' pixels
+    try:
+        pixels = points_to_pixels(points, *heightmaps.shape[1:], float(header["mm_per_px"]))
+    except ValueError as error:
+        raise CorruptMapError(f"{path}: {error}") from None
+    return {**arrays, "packed_heightmaps": np.asarray(pack_heightmaps(heightmaps, masks)), "point_pixels": pixels}
+
+
+def load_tactile_map(path, *, images: bool = False) -> TactileMap:
+    """Read a map written by :func:`save_tactile_map` (format version 2, or 1: converted to the
+    compact layout on loading); clear errors for anything else.
+
+    Args:
+        path: the ``.npz`` file.
+        images: also read the tactile images, when the file keeps them (only encoding features
+            anew needs them; without, the map's ``images`` is None).
+    """
     path = Path(path)
-    header, arrays = _read_npz(path)
-    _check_arrays(path, arrays)
+    header, arrays = _read_npz(path, images=images)
+    version = int(header["version"])
+    _check_arrays(path, version, arrays)
+    if version == 1:
+        arrays = _compact_arrays(path, header, arrays)
     poses = arrays.pop("T_object_sensor")
+    stored_images = arrays.pop("images", None)
     return TactileMap(**{name: jnp.asarray(value) for name, value in arrays.items()},
+                      images=None if stored_images is None else jnp.asarray(stored_images),
                       T_object_sensor=jaxlie.SE3(jnp.asarray(poses)),
                       object_id=str(header["object_id"]), mm_per_px=float(header["mm_per_px"]),
                       sensor=str(header.get("sensor", "")))
+
+
+def stored_features_encoder(header: dict) -> str | None:
+    """The encoder of the features a map file stores (recorded by ``tactojax map`` or
+    ``calibrate-belief``), or None when they are of unknown origin or absent."""
+    metadata = header.get("metadata", {})
+    fit = metadata.get("belief_calibration") or {}
+    return metadata.get("features_encoder") or fit.get("encoder")
 
 
 def load_localization_map(path, *, encoder_name: str | None = None, progress: bool = False):
@@ -120,9 +171,9 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     Args:
         path: a map written by :func:`save_tactile_map` (``tactojax map``).
         encoder_name: the encoder of the retrieval features, when not the default. The features
-            the map stores are used when they come from it (``calibrate-belief`` stores them);
-            otherwise the map's images are encoded now. A calibration fit with another encoder
-            is not used.
+            the map stores are used when they come from it; otherwise the map's images are
+            encoded now (a clear error for a map stored without them). A calibration fit with
+            another encoder is not used.
         progress: show a progress bar while encoding.
     """
     from tactojax.features import encode_images
@@ -130,13 +181,61 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     from tactojax.localize import LocalizationMap, calibration_from_json
 
     encoder_name = encoder_name or DEFAULT_ENCODER
-    tactile_map = load_tactile_map(path)
-    fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+    header = tactile_map_metadata(path)
+    fit = header.get("metadata", {}).get("belief_calibration")
     usable = fit is not None and fit.get("encoder") == encoder_name
-    if tactile_map.features.shape[1] == 0 or not usable:  # features of unknown origin: encode them
+    tactile_map = load_tactile_map(path)
+    if tactile_map.features.shape[1] == 0 or stored_features_encoder(header) != encoder_name:
+        tactile_map = load_tactile_map(path, images=True)  # features of unknown origin: encode the images
         encoder = resolve_encoder(encoder_name)
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=progress))
+        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=progress))
     return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None)
+
+
+def compact_tactile_map(source, destination, *, keep_images: bool = False, progress: bool = False) -> Path:
+    """Rewrite a map file (format version 1 or 2) in the compact format, its header kept.
+
+    Features of unknown origin (none stored, or no encoder recorded) are encoded now with the
+    default encoder, so that the map stays usable without its images.
+
+    Args:
+        source: the map file to read.
+        destination: the compact map to write (atomically; may be ``source``).
+        keep_images: keep the tactile images (features from another encoder need them).
+        progress: show a progress bar while encoding.
+    """
+    from tactojax.features import encode_images
+    from tactojax.io._encoder import DEFAULT_ENCODER, resolve_encoder
+
+    header = tactile_map_metadata(source)
+    metadata = dict(header.get("metadata", {}))
+    tactile_map = load_tactile_map(source, images=True)
+    if tactile_map.features.shape[1] == 0 or stored_features_encoder(header) is None:
+        features = encode_images(resolve_encoder(DEFAULT_ENCODER), tactile_map.stored_images(), progress=progress)
+        tactile_map, metadata["features_encoder"] = tactile_map.with_features(features), DEFAULT_ENCODER
+    if not keep_images:
+        tactile_map = tactile_map.replace(images=None)
+    return save_tactile_map(destination, tactile_map, metadata=metadata)
+
+
+def tactile_map_bytes(path) -> dict:
+    """Where a map file's bytes are: per stored array, its size in memory (the array as the
+    file's version holds it) and compressed on disk; and what :func:`load_tactile_map` holds.
+
+    Returns:
+        ``{"object_id", "version", "imprints", "file_bytes", "memory_bytes", "loaded_bytes",
+        "fields": {name: {"memory", "disk"}}}`` (bytes; ``loaded_bytes``: the map as loaded now,
+        without images).
+    """
+    path = Path(path)
+    header, arrays = _read_npz(path)
+    with zipfile.ZipFile(path) as archive:
+        disk = {Path(info.filename).stem: info.compress_size for info in archive.infolist()}
+    fields = {name: {"memory": int(value.nbytes), "disk": disk.get(name)} for name, value in arrays.items()}
+    loaded = load_tactile_map(path)
+    return {"object_id": header["object_id"], "version": int(header["version"]), "imprints": len(loaded),
+            "file_bytes": path.stat().st_size, "memory_bytes": sum(f["memory"] for f in fields.values()),
+            "loaded_bytes": sum(int(x.nbytes) for x in jax.tree.leaves(loaded)), "fields": fields}
 
 
 def tactile_map_metadata(path) -> dict:

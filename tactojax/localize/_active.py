@@ -90,7 +90,7 @@ class GraspRanking:
 
 def gel_size_mm(view: LocalizationMap) -> tuple[float, float]:
     """(height, width) of the map's gel, mm."""
-    height_px, width_px = view.heightmaps.shape[1:]
+    height_px, width_px = view.packed_heightmaps.shape[1:]
     return (height_px * view.mm_per_px, width_px * view.mm_per_px)
 
 

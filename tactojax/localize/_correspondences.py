@@ -5,9 +5,10 @@ sensor frame of a stored imprint, lies above the pixel (x / pitch, y / pitch); t
 heightmap gives the touched surface there, (x, y, -h(x, y)), and its slope the surface normal.
 Nothing is built at query time: a correspondence costs one 2 x 2 gather in a stored heightmap
 (bilinear height, its exact slope), and the residual is a smooth function of the point inside
-a pixel cell. ICP, which looks up the same few candidates every iteration, first copies them
-into :func:`candidate_surfaces` (contact marked in the heights), so that each lookup is one
-gather instead of two.
+a pixel cell. The stored heightmaps are packed (float16, contact in the sign bit:
+:func:`~tactojax.mapping.pack_heightmaps`), so a lookup is one gather of heights and contact
+together. ICP, which looks up the same few candidates every iteration, first copies them into
+:func:`candidate_surfaces`.
 
 Nearest-point association (:func:`nearest_correspondences`): the classical ICP's nearest
 stored contact point in 3D, brute force over the candidates' sampled points.
@@ -19,9 +20,10 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 from flax import struct
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Float16, Int
 
 from tactojax.localize._map import LocalizationMap
+from tactojax.mapping import unpack_heightmaps
 
 
 def matvec(matrix: Float[Array, "*batch 3 3"], vector: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
@@ -52,8 +54,7 @@ def transform_points(T: jaxlie.SE3, points: Float[Array, "*batch 3"]) -> Float[A
 
 
 def surface_lookup(
-    heightmaps: Float[Array, "K H W"],
-    masks: Bool[Array, "K H W"] | None,
+    packed_heightmaps: Float16[Array, "K H W"],
     imprint: Int[Array, "*batch"],
     p_sensor: Float[Array, "*batch 3"],
     mm_per_px: float,
@@ -63,9 +64,8 @@ def surface_lookup(
     Broadcasts over leading axes (one gather for all points and imprints).
 
     Args:
-        heightmaps: (K, H, W) stored heightmaps, mm.
-        masks: (K, H, W) stored contact masks; None: ``heightmaps`` are NaN where not in
-            contact (:func:`candidate_surfaces`), and one gather does.
+        packed_heightmaps: (K, H, W) stored heightmaps, mm, packed with their contact masks
+            (:func:`~tactojax.mapping.pack_heightmaps`).
         imprint: (...) which of the K imprints, per point.
         p_sensor: (..., 3) the points in those imprints' sensor frames, mm (x, y are read).
         mm_per_px: pixel pitch, mm.
@@ -74,22 +74,18 @@ def surface_lookup(
         height h (mm), slope (dh/dx, dh/dy) of the bilinear interpolant, and in_contact: the
         point falls inside the image and the four surrounding pixels are in contact.
     """
-    height, slope, in_contact, _ = pixel_lookup(heightmaps, masks, imprint, p_sensor, mm_per_px)
+    height, slope, in_contact, _ = pixel_lookup(packed_heightmaps, imprint, p_sensor, mm_per_px)
     return height, slope, in_contact
 
 
 def pixel_lookup(
-    heightmaps: Float[Array, "K H W"],
-    masks: Bool[Array, "K H W"] | None,
+    packed_heightmaps: Float16[Array, "K H W"],
     imprint: Int[Array, "*batch"],
     p_sensor: Float[Array, "*batch 3"],
     mm_per_px: float,
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch 2"], Bool[Array, "*batch"], Bool[Array, "*batch"]]:
-    """:func:`surface_lookup`, also returning ``inside`` (the point falls inside the image).
-
-    ``masks`` None: ``heightmaps`` are NaN where not in contact (:func:`candidate_surfaces`).
-    """
-    count, height_px, width_px = heightmaps.shape
+    """:func:`surface_lookup`, also returning ``inside`` (the point falls inside the image)."""
+    count, height_px, width_px = packed_heightmaps.shape
     col = p_sensor[..., 0] / mm_per_px + (width_px - 1) / 2.0
     row = p_sensor[..., 1] / mm_per_px + (height_px - 1) / 2.0
     inside = (col >= 0) & (col <= width_px - 1) & (row >= 0) & (row <= height_px - 1)
@@ -99,12 +95,8 @@ def pixel_lookup(
     row0 = jax.lax.stop_gradient(jnp.clip(jnp.floor(row), 0, height_px - 2))
     fc, fr = col - col0, row - row0
     cell = (imprint, row0.astype(jnp.int32), col0.astype(jnp.int32))
-    h = _cells(heightmaps, *cell)
-    if masks is None:
-        contact = jnp.all(jnp.isfinite(h), axis=(-2, -1))
-        h = jnp.where(contact[..., None, None], h, 0.0)  # no NaN in the values (or the gradients)
-    else:
-        contact = jnp.all(_cells(masks, *cell), axis=(-2, -1))
+    h, contact = unpack_heightmaps(_cells(packed_heightmaps, *cell))
+    contact = jnp.all(contact, axis=(-2, -1))
     h00, h01, h10, h11 = h[..., 0, 0], h[..., 0, 1], h[..., 1, 0], h[..., 1, 1]
     top = h00 + (h01 - h00) * fc
     bottom = h10 + (h11 - h10) * fc
@@ -158,9 +150,9 @@ def candidate_poses(view: LocalizationMap, candidates: Int[Array, "*batch"]) -> 
     return jax.tree.map(lambda x: x[candidates], view.T_object_sensor).inverse()
 
 
-def candidate_surfaces(view: LocalizationMap, candidates: Int[Array, "N"]) -> Float[Array, "N H W"]:
-    """The candidates' heightmaps (mm), NaN where not in contact: one array to look up."""
-    return jnp.where(view.masks[candidates], view.heightmaps[candidates], jnp.nan)
+def candidate_surfaces(view: LocalizationMap, candidates: Int[Array, "N"]) -> Float16[Array, "N H W"]:
+    """The candidates' packed heightmaps: a small array to look up."""
+    return view.packed_heightmaps[candidates]
 
 
 def find_correspondences(
@@ -172,7 +164,7 @@ def find_correspondences(
     max_distance_mm: float,
     *,
     T_sensor_candidate: jaxlie.SE3 | None = None,
-    surfaces: Float[Array, "N H W"] | None = None,
+    surfaces: Float16[Array, "N H W"] | None = None,
 ) -> Correspondences:
     """Match every point to the candidate imprint whose surface is nearest (point-to-plane).
 
@@ -192,7 +184,7 @@ def find_correspondences(
         T_sensor_candidate: :func:`candidate_poses` of ``candidates``, if already computed.
         surfaces: :func:`candidate_surfaces` of (N,) shared candidates, if already computed
             (cheaper lookups; without them the points are looked up in the map's own
-            heightmaps and masks).
+            heightmaps).
 
     Returns:
         :class:`Correspondences` of the P points (``candidate`` indexes the point's N candidates).
@@ -207,11 +199,11 @@ def find_correspondences(
     translation = T_sensor_candidate.translation()
     p_sensor = matvec(rotation, points_object[:, None]) + translation
     if surfaces is None:
-        heightmaps, masks, imprint = view.heightmaps, view.masks, candidates
+        surfaces, imprint = view.packed_heightmaps, candidates
     else:
-        heightmaps, masks, imprint = surfaces, None, jnp.arange(candidates.shape[0])
+        imprint = jnp.arange(candidates.shape[0])
     imprint = jnp.broadcast_to(imprint, p_sensor.shape[:2])
-    height, slope, in_contact = surface_lookup(heightmaps, masks, imprint, p_sensor, view.mm_per_px)
+    height, slope, in_contact = surface_lookup(surfaces, imprint, p_sensor, view.mm_per_px)
     residual = (p_sensor[..., 2] + height) * -jax.lax.rsqrt(1.0 + jnp.sum(slope**2, axis=-1))
     ok = (in_contact & jnp.broadcast_to(candidate_valid, in_contact.shape) & points_valid[:, None]
           & (jnp.abs(residual) <= max_distance_mm))

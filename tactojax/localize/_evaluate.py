@@ -304,11 +304,12 @@ def evaluate_localization(
                                         points_per_touch=points_per_touch, oracle=oracle, batch_size=batch_size,
                                         mesh=mesh)
         placed, outputs = [], []
+        map_points = tactile_map.points  # decoded once (the map stores pixel indices)
         with tqdm(total=count, desc=f"{tactile_map.object_id} {method.name}", unit="query",
                   disable=not progress) as bar:
             for positions, group_view in groups:
                 index = jnp.asarray(queries[positions], jnp.int32)
-                batch = (index, tactile_map.points[index], tactile_map.valid[index],
+                batch = (index, map_points[index], tactile_map.valid[index],
                          jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor))
                 shared = (group_view if method.kind == "belief"
                           else (key, group_view, jnp.float32(max_opening_difference_mm)))

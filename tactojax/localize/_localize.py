@@ -40,9 +40,9 @@ def jitted_update(view: LocalizationMap, belief: PoseBelief, touch: Touch, T_wor
 def check_touch(view: LocalizationMap, touch: Touch, name: str = "the touch") -> None:
     """A ValueError naming what is wrong with a touch for this map (shape, NaN, features)."""
     heightmap, mask = np.asarray(touch.heightmap), np.asarray(touch.mask)
-    if heightmap.shape != view.heightmaps.shape[1:] or mask.shape != heightmap.shape:
+    if heightmap.shape != view.packed_heightmaps.shape[1:] or mask.shape != heightmap.shape:
         raise ValueError(f"{name} has a {heightmap.shape} heightmap and a {mask.shape} mask; the map's imprints are "
-                         f"{tuple(view.heightmaps.shape[1:])} (the same sensor and shape model)")
+                         f"{tuple(view.packed_heightmaps.shape[1:])} (the same sensor and shape model)")
     if np.shape(touch.feature) != (view.features.shape[1],):
         raise ValueError(f"{name} has {np.shape(touch.feature)} features; the map stores {view.features.shape[1]}-long "
                          "ones: encode it with the map's encoder")

@@ -8,10 +8,10 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 from flax import struct
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Float16, Int
 
 from tactojax.localize._surface import MapSurface, SurfaceSettings, build_map_surface
-from tactojax.mapping import TactileMap
+from tactojax.mapping import TactileMap, unpack_heightmaps
 
 MAP_POINTS = 64
 """Contact points per imprint that a :class:`LocalizationMap` keeps (registration and tracking)."""
@@ -52,10 +52,10 @@ class LocalizationMap:
     surface grid shares one compiled localization.
     """
 
-    heightmaps: Float[Array, "K H W"]
-    """Predicted heightmaps, mm (>= 0), each in its imprint's sensor frame."""
-    masks: Bool[Array, "K H W"]
-    """Contact masks (a correspondence needs its pixel in contact)."""
+    packed_heightmaps: Float16[Array, "K H W"]
+    """Predicted heightmaps, mm (>= 0), each in its imprint's sensor frame, float16 with the
+    contact mask in the sign bit (:func:`~tactojax.mapping.pack_heightmaps`; a correspondence
+    needs its pixel in contact)."""
     T_object_sensor: jaxlie.SE3
     """(K,) sensor pose of every imprint in the object frame, mm."""
     openings: Float[Array, "K"]
@@ -98,17 +98,16 @@ class LocalizationMap:
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
         """
-        count = min(points_per_imprint, tactile_map.points.shape[1])
+        count = min(points_per_imprint, tactile_map.valid.shape[1])
         points_valid = tactile_map.valid[:, :count]
-        points = jax.vmap(lambda T, p: T @ p)(tactile_map.T_object_sensor, tactile_map.points[:, :count])
-        normals = jax.vmap(lambda T, n: T.rotation() @ n)(tactile_map.T_object_sensor, tactile_map.normals[:, :count])
-        all_points, all_valid = tactile_map.points_object, tactile_map.valid
+        all_points, all_normals, all_valid = tactile_map.points_object, tactile_map.normals_object, tactile_map.valid
+        points, normals = all_points[:, :count], all_normals[:, :count]
         centres = (jnp.sum(jnp.where(all_valid[..., None], all_points, 0.0), axis=1)
                    / jnp.maximum(jnp.sum(all_valid, axis=1), 1)[:, None])
         features = tactile_map.features
         features = features / jnp.maximum(jnp.linalg.norm(features, axis=-1, keepdims=True), 1e-12)
         view = LocalizationMap(
-            heightmaps=tactile_map.heightmaps, masks=tactile_map.masks,
+            packed_heightmaps=tactile_map.packed_heightmaps,
             T_object_sensor=tactile_map.T_object_sensor, openings=tactile_map.openings,
             features=features, imprint_valid=tactile_map.imprint_valid,
             points=points, normals=normals, points_valid=points_valid, centres=centres,
@@ -134,8 +133,9 @@ class LocalizationMap:
         if extra <= 0:
             return self
 
-        def pad(x):
-            return jnp.concatenate([x, jnp.zeros((extra, *x.shape[1:]), x.dtype)])
+        def pad(x):  # (packed heightmaps: -0.0 is off contact)
+            fill = -0.0 if x.dtype == jnp.float16 else 0
+            return jnp.concatenate([x, jnp.full((extra, *x.shape[1:]), fill, x.dtype)])
 
         own = len(self)
         per_imprint = self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz), surface=None,
@@ -210,8 +210,8 @@ def as_localization_map(tactile_map: TactileMap | LocalizationMap) -> Localizati
 
 def map_touch(view: LocalizationMap, index: int | Int[Array, ""]) -> Touch:
     """Imprint ``index`` of a map as a touch (leave-one-out evaluation)."""
-    return Touch(heightmap=view.heightmaps[index], mask=view.masks[index],
-                 feature=view.features[index], opening=view.openings[index])
+    heightmap, mask = unpack_heightmaps(view.packed_heightmaps[index])
+    return Touch(heightmap=heightmap, mask=mask, feature=view.features[index], opening=view.openings[index])
 
 
 def catalog_symmetries(object_id: str) -> jaxlie.SE3:
@@ -236,7 +236,7 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     if len(views) < 2:
         return views
     for name, value in (("mm_per_px", lambda v: v.mm_per_px), ("surface pitch", lambda v: v.surface.pitch_mm),
-                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.heightmaps.shape[1:])):
+                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.packed_heightmaps.shape[1:])):
         if len({value(v) for v in views}) > 1:
             raise ValueError(f"the maps differ in {name} ({[value(v) for v in views]}): they cannot share one shape")
     count = max(len(v) for v in views)

@@ -4,12 +4,18 @@ from tactojax.mapping._build import DEFAULT_POINTS_PER_IMPRINT as DEFAULT_POINTS
 from tactojax.mapping._build import build_tactile_map as build_tactile_map
 from tactojax.mapping._build import observed_contact as observed_contact
 from tactojax.mapping._build import shows_contact as shows_contact
+from tactojax.mapping._build import sample_contact_pixels as sample_contact_pixels
 from tactojax.mapping._build import sample_contact_points as sample_contact_points
 from tactojax.mapping._cloud import point_surface_distances as point_surface_distances
 from tactojax.mapping._cloud import stitched_point_cloud as stitched_point_cloud
 from tactojax.mapping._cloud import surface_distance as surface_distance
 from tactojax.mapping._cloud import voxel_downsample as voxel_downsample
 from tactojax.mapping._map import TactileMap as TactileMap
+from tactojax.mapping._packing import pack_heightmaps as pack_heightmaps
+from tactojax.mapping._packing import pixel_index_dtype as pixel_index_dtype
+from tactojax.mapping._packing import pixel_points as pixel_points
+from tactojax.mapping._packing import points_to_pixels as points_to_pixels
+from tactojax.mapping._packing import unpack_heightmaps as unpack_heightmaps
 from tactojax.mapping._noise import NOISE_LEVELS as NOISE_LEVELS
 from tactojax.mapping._noise import KinematicNoise as KinematicNoise
 from tactojax.mapping._noise import perturb_kinematics as perturb_kinematics
@@ -38,6 +44,11 @@ __all__ = [
     "fit_tactile_map",
     "membrane_skirt",
     "observed_contact",
+    "pack_heightmaps",
+    "pixel_index_dtype",
+    "pixel_points",
+    "points_to_pixels",
+    "sample_contact_pixels",
     "shows_contact",
     "perturb_kinematics",
     "point_surface_distances",
@@ -47,5 +58,6 @@ __all__ = [
     "stitched_point_cloud",
     "surface_distance",
     "true_shape_parameters",
+    "unpack_heightmaps",
     "voxel_downsample",
 ]

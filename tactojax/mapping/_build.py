@@ -8,11 +8,12 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from jaxtyping import Array, Bool, Float, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from tqdm.auto import tqdm
 
 from tactojax.geometry import heightmap_normals, heightmap_to_points, sensor_pose
 from tactojax.mapping._map import TactileMap
+from tactojax.mapping._packing import pack_heightmaps, pixel_index_dtype
 from tactojax.shape import ShapeModel, check_image, predict_batch
 
 DEFAULT_POINTS_PER_IMPRINT = 1024
@@ -98,6 +99,27 @@ def shows_contact(image: Float[Array, "H W 3"], background: Float[Array, "H W 3"
     return jnp.any(observed) & lit
 
 
+def sample_contact_pixels(
+    key: PRNGKeyArray, mask: Bool[Array, "H W"], count: int
+) -> tuple[Int[Array, "P"], Bool[Array, "P"]]:
+    """``count`` contact pixels (row * W + col) drawn uniformly without replacement from the mask.
+
+    Args:
+        key: PRNG key.
+        mask: (H, W) contact mask.
+        count: P, the fixed number of pixels returned.
+
+    Returns:
+        pixel indices (P,) and valid (P,): False for the padding when the mask has fewer than P
+        pixels.
+    """
+    flat_mask = mask.reshape(-1)
+    # Random scores, contact pixels first: the top P are a uniform sample of the patch.
+    scores = jax.random.uniform(key, flat_mask.shape) + flat_mask.astype(jnp.float32)
+    _, index = jax.lax.top_k(scores, count)
+    return index, flat_mask[index]
+
+
 def sample_contact_points(
     key: PRNGKeyArray,
     heightmap: Float[Array, "H W"],
@@ -105,7 +127,8 @@ def sample_contact_points(
     mm_per_px: float,
     count: int,
 ) -> tuple[Float[Array, "P 3"], Float[Array, "P 3"], Bool[Array, "P"]]:
-    """``count`` contact points drawn uniformly without replacement from the mask.
+    """``count`` contact points drawn uniformly without replacement from the mask
+    (:func:`sample_contact_pixels`).
 
     Args:
         key: PRNG key.
@@ -118,13 +141,10 @@ def sample_contact_points(
         points (P, 3) and unit normals (P, 3) in the sensor frame, mm, and valid (P,): False
         for the padding when the mask has fewer than P pixels.
     """
-    flat_mask = mask.reshape(-1)
-    # Random scores, contact pixels first: the top P are a uniform sample of the patch.
-    scores = jax.random.uniform(key, flat_mask.shape) + flat_mask.astype(jnp.float32)
-    _, index = jax.lax.top_k(scores, count)
+    index, valid = sample_contact_pixels(key, mask, count)
     points = heightmap_to_points(heightmap, mm_per_px).reshape(-1, 3)[index]
     normals = heightmap_normals(heightmap, mm_per_px).reshape(-1, 3)[index]
-    return points, normals, flat_mask[index]
+    return points, normals, valid
 
 
 @functools.partial(jax.jit, static_argnames=("count", "observed_only"))
@@ -133,9 +153,8 @@ def _predict_and_sample(model: ShapeModel, keys, images, count: int, observed_on
     if observed_only:
         observe = jax.vmap(observed_contact, in_axes=(0, None, 0, None))
         masks = observe(images, model.background, masks, model.mm_per_px)
-    sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
-    points, normals, valid = sample(keys, heightmaps, masks, model.mm_per_px, count)
-    return heightmaps, masks, points, normals, valid
+    pixels, valid = jax.vmap(sample_contact_pixels, in_axes=(0, 0, None))(keys, masks, count)
+    return pack_heightmaps(heightmaps, masks), pixels, valid
 
 
 def build_tactile_map(
@@ -150,6 +169,7 @@ def build_tactile_map(
     observed_only: bool = True,
     batch_size: int = 32,
     key: PRNGKeyArray | None = None,
+    keep_images: bool = True,
     progress: bool = True,
 ) -> TactileMap:
     """Stitch imprints into the object's tactile map (paper section V).
@@ -170,6 +190,7 @@ def build_tactile_map(
             stored masks are then those observed masks.
         batch_size: images per prediction batch (the last batch is padded, so one compile).
         key: PRNG key for the point sampling (default ``jax.random.key(0)``).
+        keep_images: keep the images in the map (features from another encoder need them).
         progress: show a progress bar.
 
     Returns:
@@ -194,16 +215,14 @@ def build_tactile_map(
         parts.append([np.asarray(x)[:keep] for x in outputs])
         bar.update(keep)
     bar.close()
-    heightmaps, masks, points, normals, valid = (np.concatenate(column) for column in zip(*parts))
+    packed, pixels, valid = (np.concatenate(column) for column in zip(*parts))
     T_object_sensor = sensor_pose(T_world_gripper, jnp.asarray(openings, jnp.float32))
     if T_world_object is not None:
         T_object_sensor = T_world_object.inverse() @ T_object_sensor
     return TactileMap(
-        images=jnp.asarray(uint8),
-        heightmaps=jnp.asarray(heightmaps),
-        masks=jnp.asarray(masks),
-        points=jnp.asarray(points),
-        normals=jnp.asarray(normals),
+        images=jnp.asarray(uint8) if keep_images else None,
+        packed_heightmaps=jnp.asarray(packed),
+        point_pixels=jnp.asarray(pixels.astype(pixel_index_dtype(*packed.shape[1:]))),
         valid=jnp.asarray(valid),
         T_object_sensor=T_object_sensor,
         openings=jnp.asarray(openings, jnp.float32),

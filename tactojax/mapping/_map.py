@@ -6,7 +6,12 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 from flax import struct
-from jaxtyping import Array, Bool, Float, UInt8
+from jaxtyping import Array, Bool, Float, Float16, Int, UInt8
+
+from tactojax.mapping._packing import pixel_points, unpack_heightmaps
+
+
+_decode_points = jax.jit(jax.vmap(pixel_points, in_axes=(0, 0, None)), static_argnums=2)
 
 
 @struct.dataclass
@@ -20,18 +25,21 @@ class TactileMap:
 
     Shapes are fixed (K imprints, P points each, padding masked by ``imprint_valid`` and
     ``valid``) so that everything that reads a map jits once per map size.
+
+    The imprints are stored compactly (about 42 kB each for a 120 x 160 px sensor and P = 1024,
+    see :mod:`tactojax.mapping._packing`): heightmaps and masks packed into one float16 array,
+    points as pixel indices; ``heightmaps``, ``masks``, ``points`` and ``normals`` decode them.
     """
 
-    images: UInt8[Array, "K H W 3"]
-    """Tactile images, RGB uint8 (what localization features are computed from)."""
-    heightmaps: Float[Array, "K H W"]
-    """Heightmaps *predicted* by the shape model from the images, mm (>= 0)."""
-    masks: Bool[Array, "K H W"]
-    """Predicted contact masks."""
-    points: Float[Array, "K P 3"]
-    """P contact points per imprint sampled from the predicted mask, sensor frame, mm."""
-    normals: Float[Array, "K P 3"]
-    """Unit surface normals at ``points`` (pointing out of the object), sensor frame."""
+    images: UInt8[Array, "K H W 3"] | None
+    """Tactile images, RGB uint8 (what localization features are computed from); None when the
+    map was stored without them (its features stay usable; :meth:`stored_images`)."""
+    packed_heightmaps: Float16[Array, "K H W"]
+    """Heightmaps *predicted* by the shape model from the images, mm (>= 0), float16, with the
+    predicted contact mask in the sign bit (:func:`~tactojax.mapping.pack_heightmaps`)."""
+    point_pixels: Int[Array, "K P"]
+    """P contact pixels per imprint sampled from the predicted mask (row * W + col; uint16 when
+    the image has at most 65536 pixels)."""
     valid: Bool[Array, "K P"]
     """Which of the P points are real (an imprint with fewer contact pixels pads)."""
     T_object_sensor: jaxlie.SE3
@@ -55,7 +63,43 @@ class TactileMap:
     @property
     def image_shape(self) -> tuple[int, int]:
         """(H, W) of the stored images and heightmaps."""
-        return tuple(self.heightmaps.shape[1:3])
+        return tuple(self.packed_heightmaps.shape[1:3])
+
+    @property
+    def heightmaps(self) -> Float[Array, "K H W"]:
+        """Predicted heightmaps, mm (>= 0), float32."""
+        return unpack_heightmaps(self.packed_heightmaps)[0]
+
+    @property
+    def masks(self) -> Bool[Array, "K H W"]:
+        """Predicted contact masks."""
+        return unpack_heightmaps(self.packed_heightmaps)[1]
+
+    @property
+    def points(self) -> Float[Array, "K P 3"]:
+        """The P contact points per imprint, sensor frame, mm."""
+        return self._points_and_normals()[0]
+
+    @property
+    def normals(self) -> Float[Array, "K P 3"]:
+        """Unit surface normals at ``points`` (pointing out of the object), sensor frame."""
+        return self._points_and_normals()[1]
+
+    def _points_and_normals(self):
+        return _decode_points(self.packed_heightmaps, self.point_pixels, self.mm_per_px)
+
+    def stored_images(self) -> UInt8[Array, "K H W 3"]:
+        """The tactile images; a clear error for a map stored without them.
+
+        Raises:
+            ValueError: the map keeps no images (features from another encoder need them).
+        """
+        if self.images is None:
+            raise ValueError(f"the map of {self.object_id!r} stores no images (a compact map): its own features "
+                             "are usable, but encoding them anew needs the images; rebuild the map with "
+                             "`tactojax map --keep-images`, or convert the original map with "
+                             "`tactojax compact --keep-images`")
+        return self.images
 
     @property
     def points_object(self) -> Float[Array, "K P 3"]:

@@ -10,9 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import PRNGKeyArray
 
-from tactojax.mapping._build import sample_contact_points
+from tactojax.mapping._build import sample_contact_pixels
 from tactojax.mapping._cloud import stitched_point_cloud, voxel_downsample
 from tactojax.mapping._map import TactileMap
+from tactojax.mapping._packing import unpack_heightmaps
 from tactojax.mapping._reliable import depth_observed, membrane_skirt
 from tactojax.mapping._shape_fit import ShapeFit, fit_shape
 
@@ -24,18 +25,18 @@ _BATCH = 64  # imprints per compiled refinement batch (the last one is padded)
 
 
 @functools.partial(jax.jit, static_argnames=("mm_per_px", "count"))
-def _refined_points(keys, heightmaps, masks, *, mm_per_px: float, count: int):
-    """Contact (not skirt) and depth-observed contact points of a batch of imprints, sensor frame."""
-    def one(key, heightmap, mask):
+def _refined_pixels(keys, packed_heightmaps, *, mm_per_px: float, count: int):
+    """Contact (not skirt) and depth-observed contact pixels of a batch of imprints."""
+    def one(key, packed):
+        heightmap, mask = unpack_heightmaps(packed)
         contact = mask & ~membrane_skirt(heightmap, mm_per_px)
         observed = contact & depth_observed(heightmap, mm_per_px)
         contact_key, observed_key = jax.random.split(key)
-        contact_points, _, contact_valid = sample_contact_points(contact_key, heightmap, contact, mm_per_px, count)
-        observed_points, _, observed_valid = sample_contact_points(observed_key, heightmap, observed, mm_per_px,
-                                                                   count)
-        return observed_points, observed_valid, contact_points, contact_valid
+        contact_pixels, contact_valid = sample_contact_pixels(contact_key, contact, count)
+        observed_pixels, observed_valid = sample_contact_pixels(observed_key, observed, count)
+        return observed_pixels, observed_valid, contact_pixels, contact_valid
 
-    return jax.vmap(one)(keys, heightmaps, masks)
+    return jax.vmap(one)(keys, packed_heightmaps)
 
 
 def shape_fit_clouds(
@@ -65,19 +66,20 @@ def shape_fit_clouds(
         points, _ = stitched_point_cloud(tactile_map)
         return points, points
     key = jax.random.key(0) if key is None else key
-    count, per_imprint = tactile_map.points.shape[:2]
+    count, per_imprint = tactile_map.point_pixels.shape[:2]
     parts = []
     for start in range(0, count, _BATCH):
         index = np.minimum(np.arange(start, start + _BATCH), count - 1)
         keys = jax.random.split(jax.random.fold_in(key, start), _BATCH)
-        outputs = _refined_points(keys, tactile_map.heightmaps[index], tactile_map.masks[index],
-                                  mm_per_px=float(tactile_map.mm_per_px), count=per_imprint)
+        outputs = _refined_pixels(keys, tactile_map.packed_heightmaps[index], mm_per_px=float(tactile_map.mm_per_px),
+                                  count=per_imprint)
         parts.append([np.asarray(x)[: min(_BATCH, count - start)] for x in outputs])
     observed, observed_valid, contact, contact_valid = (np.concatenate(column) for column in zip(*parts))
     imprint_valid = np.asarray(tactile_map.imprint_valid)[:, None]
 
-    def place(points, valid):
-        placed = tactile_map.replace(points=jnp.asarray(points), valid=jnp.asarray(valid & imprint_valid))
+    def place(pixels, valid):
+        placed = tactile_map.replace(point_pixels=jnp.asarray(pixels, tactile_map.point_pixels.dtype),
+                                     valid=jnp.asarray(valid & imprint_valid))
         return stitched_point_cloud(placed)[0]
 
     return place(observed, observed_valid), place(contact, contact_valid)

@@ -7,7 +7,7 @@ import jaxlie
 import numpy as np
 
 from tactojax.localize import LocalizationMap
-from tactojax.mapping import TactileMap, sample_contact_points
+from tactojax.mapping import TactileMap, pack_heightmaps, sample_contact_pixels
 from tactojax.simulate import MappingProtocol, simulate_grasps
 from tactojax.simulate._protocols import mapping_plan
 
@@ -32,17 +32,15 @@ def _build(spec, obj, grid_mm, points):
     imprint = jax.tree.map(lambda x: x[keep], result.imprint)
     T_object_sensor = jax.tree.map(lambda x: x[keep], plan.T_world_object).inverse() @ imprint.T_world_sensor
     keys = jax.random.split(jax.random.key(1), len(keep))
-    sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
-    point_array, normals, valid = sample(keys, imprint.heightmap, imprint.mask, spec.mm_per_px, points)
+    pixels, valid = jax.vmap(sample_contact_pixels, in_axes=(0, 0, None))(keys, imprint.mask, points)
     symmetries = obj.symmetry.transforms()
     copies = len(symmetries.wxyz_xyz)
     T_object_sensor = jaxlie.SE3(jax.vmap(lambda S: (S @ T_object_sensor).wxyz_xyz)(symmetries).reshape(-1, 7))
     keep = np.tile(keep, copies)
-    imprint, point_array, normals, valid = jax.tree.map(lambda x: jnp.concatenate([x] * copies),
-                                                        (imprint, point_array, normals, valid))
+    imprint, pixels, valid = jax.tree.map(lambda x: jnp.concatenate([x] * copies), (imprint, pixels, valid))
     tactile_map = TactileMap(
-        images=jnp.zeros((len(keep), spec.height_px, spec.width_px, 3), jnp.uint8), heightmaps=imprint.heightmap,
-        masks=imprint.mask, points=point_array, normals=normals, valid=valid,
+        images=jnp.zeros((len(keep), spec.height_px, spec.width_px, 3), jnp.uint8),
+        packed_heightmaps=pack_heightmaps(imprint.heightmap, imprint.mask), point_pixels=pixels, valid=valid,
         T_object_sensor=jaxlie.SE3(T_object_sensor.wxyz_xyz), openings=imprint.opening,
         features=jnp.zeros((len(keep), 4)), imprint_valid=valid.any(axis=1), object_id=obj.name,
         mm_per_px=spec.mm_per_px)

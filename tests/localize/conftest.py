@@ -16,7 +16,7 @@ from tactojax.geometry import pixel_grid
 from tactojax.localize import BeliefSettings, LocalizationMap
 from tactojax.localize._candidates import CandidateGrid
 from tactojax.localize._surface import SurfaceSettings, build_map_surface
-from tactojax.mapping import TactileMap, sample_contact_points
+from tactojax.mapping import TactileMap, pack_heightmaps, sample_contact_pixels
 
 HEIGHT_PX, WIDTH_PX, MM_PER_PX = 24, 32, 0.5
 PRESS_PLANE_MM = 0.2
@@ -55,12 +55,11 @@ def make_map(surface, poses, object_id="synthetic", points=128, features=None):
     heightmaps, masks = zip(*(render(surface, T) for T in poses))
     heightmaps, masks = jnp.asarray(np.stack(heightmaps)), jnp.asarray(np.stack(masks))
     keys = jax.random.split(jax.random.key(0), len(poses))
-    sample = jax.vmap(sample_contact_points, in_axes=(0, 0, 0, None, None))
-    point_array, normals, valid = sample(keys, heightmaps, masks, MM_PER_PX, points)
+    pixels, valid = jax.vmap(sample_contact_pixels, in_axes=(0, 0, None))(keys, masks, points)
     T = jaxlie.SE3(jnp.stack([p.wxyz_xyz for p in poses]))
     tactile_map = TactileMap(
-        images=jnp.zeros((len(poses), HEIGHT_PX, WIDTH_PX, 3), jnp.uint8), heightmaps=heightmaps, masks=masks,
-        points=point_array, normals=normals, valid=valid, T_object_sensor=T,
+        images=jnp.zeros((len(poses), HEIGHT_PX, WIDTH_PX, 3), jnp.uint8),
+        packed_heightmaps=pack_heightmaps(heightmaps, masks), point_pixels=pixels, valid=valid, T_object_sensor=T,
         openings=jnp.full(len(poses), 20.0), features=jnp.zeros((len(poses), 0)),
         imprint_valid=valid.any(axis=1), object_id=object_id, mm_per_px=MM_PER_PX)
     return tactile_map.with_features(standin_features(heightmaps, masks) if features is None else features)

@@ -193,13 +193,13 @@ def test_symmetric_map_keeps_both_copies_and_counts_them_as_one(synthetic, belie
 
 def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthetic, belief_settings):
     """Parallel ridges: a touch slid along them feels the same, so the belief must not be sure
-    of where it is along them; on the bumps (every direction observable) it is. The best
+    of where it is along them; on the bumps (every direction observable) it is far surer. The best
     hypothesis's probes sit 3 mm (the touch's cloud RMSE, measured here point by point) away."""
     from tactojax.localize._belief import neighbourhood_probes
 
     within = {}
     for name, view, yaw in (("bumps", bumps_view, 0.0), ("ridges", ridges_view, 10.0)):
-        T_true = synthetic.sensor_pose(1.5, -1.0, yaw)
+        T_true = synthetic.sensor_pose(1.53, -0.96, yaw)  # off the presses' pixel grid, as a new touch is
         touch = synthetic.touch(getattr(synthetic, name), T_true)
         belief = update(view, empty_belief(view, belief_settings), touch, jaxlie.SE3.identity(), belief_settings)
         within[name] = float(belief.probability_within())
@@ -210,7 +210,9 @@ def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthet
         for probe in np.asarray(probes.as_matrix(), np.float64):
             moved = points @ (probe[:3, :3] - centre[:3, :3]).T + (probe[:3, 3] - centre[:3, 3])
             assert np.sqrt(np.mean(np.sum(moved**2, axis=1))) == pytest.approx(belief_settings.probe_mm, rel=0.1)
-    assert within["bumps"] > 0.9
+    # Off the presses' pixel grid the bumps give 0.73-0.78 (0.78 here); the 0.95 of a touch on the
+    # grid came from its points lying exactly on the surface grid's cell faces.
+    assert within["bumps"] > 0.7
     assert within["ridges"] < 0.5
 
 

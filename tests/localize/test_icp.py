@@ -112,7 +112,9 @@ def test_gradient_of_the_pose_with_respect_to_the_touch_heightmap(bumps_view, sy
 
         pose = lambda heightmap: pose_in(view, heightmap)  # noqa: E731
         heightmap = touch.heightmap.astype(jnp.float64)
-        check_grads(pose, (heightmap,), order=1, modes=["rev"], eps=1e-5, atol=1e-4, rtol=1e-3)
+        # ICP is smooth between changes of correspondence; a small step (float64) keeps the finite
+        # difference inside one smooth piece (eps 1e-5 straddled a kink at 1 in 5 touch positions).
+        check_grads(pose, (heightmap,), order=1, modes=["rev"], eps=1e-7, atol=1e-4, rtol=1e-3)
         # Raising the whole patch by 0.1 mm moves the estimate by about 0.1 mm along the sensor z.
         moved = pose(heightmap + 0.1 * touch.mask)
         T0, T1 = jaxlie.SE3.exp(pose(heightmap)), jaxlie.SE3.exp(moved)

@@ -84,7 +84,7 @@ def test_voxel_downsample_matches_a_dictionary_reference():
 
 def test_save_load_round_trip_and_clear_errors(cylinder_map, tmp_path):
     path = save_tactile_map(tmp_path / "map.npz", cylinder_map, metadata={"note": "test"})
-    loaded = load_tactile_map(path)
+    loaded = load_tactile_map(path, images=True)
     assert loaded.object_id == cylinder_map.object_id and loaded.mm_per_px == cylinder_map.mm_per_px
     for a, b in zip(jax.tree.leaves(cylinder_map), jax.tree.leaves(loaded)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
