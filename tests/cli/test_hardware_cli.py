@@ -22,8 +22,9 @@ def recorded(tmp_path_factory, lookup_model):
     assert main(["record", "--simulate", "gum_box", "--scale", "0.25", "--grid-mm", "30", "--yaws-deg", "0",
                  "--out", str(recording)]) == 0
     model = save_shape_model(folder / "lookup.msgpack", lookup_model)
+    # --keep-images: the tests localize with the tiny encoder, whose features are computed from them
     assert main(["map", str(recording), "--model", str(model), "--out", str(tactile_map), "--points", "256",
-                 "--no-progress"]) == 0
+                 "--keep-images", "--no-progress"]) == 0
     records = open_dataset(recording).read(["image", "opening_mm", "T_world_gripper", "T_world_object"])
     assert len(records["opening_mm"]) == 16  # 4 turns x 4 grasps of the 30 mm grid
     return folder, str(tactile_map), str(model), records
