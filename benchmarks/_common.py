@@ -19,7 +19,6 @@ import argparse
 import functools
 import os
 import platform
-import re
 import statistics
 import sys
 import time
@@ -33,7 +32,7 @@ import jax
 from tactojax.cli import format_table as _format_table
 from tactojax.cli import write_json as write_json
 from tactojax.features import encode_images
-from tactojax.io import (DEFAULT_ENCODER, load_tactile_map, read_grasps, save_tactile_map,
+from tactojax.io import (DEFAULT_ENCODER, catalog_slug, load_tactile_map, read_grasps, save_tactile_map,
                          tactile_map_metadata)
 from tactojax.localize import calibration_from_json
 from tactojax.mapping import build_tactile_map
@@ -138,10 +137,6 @@ def map_paths(args: argparse.Namespace) -> list[str]:
 
 # --- simulated data and cached maps --------------------------------------------------------------
 
-def _slug(text: str) -> str:
-    return re.sub(r"[^\w.-]+", "_", text).strip("_")
-
-
 def simulated(work, name: str, protocol, tag: str, *, seed: int = 0, scale: float = 0.5) -> Path:
     """A simulated dataset of ``protocol`` on catalog object ``name`` (gelslim at ``scale``),
     written once under ``work`` and read from there afterwards.
@@ -169,7 +164,7 @@ def object_map(work, name: str, model, model_name: str, encoder, encoder_name: s
     names). One map for every script: ``--seed`` draws what a script does with it, not the map.
     ``images``: a cached map is read with its tactile images (a fresh one holds them anyway)."""
     tag = f"map-grid{grid_mm:g}"
-    cached = Path(work) / f"{name}-{tag}-{_slug(model_name)}-{_slug(encoder_name)}.npz"
+    cached = Path(work) / f"{name}-{tag}-{catalog_slug(model_name)}-{catalog_slug(encoder_name)}.npz"
     if cached.exists():
         return load_tactile_map(cached, images=images)
     dataset = simulated(work, name, MappingProtocol(grid_mm=grid_mm), tag)

@@ -54,9 +54,9 @@ def write_catalog(path, index: dict) -> None:
 
 def catalog_maps(path) -> list[Path]:
     """The map files of a catalog's built objects, in the index's order."""
-    index = read_catalog(path)
     if not is_catalog(path):
         raise FileNotFoundError(f"{path} is not a map catalog (no {INDEX}; build one with `tactojax map-catalog`)")
+    index = read_catalog(path)
     maps = [Path(path) / entry["map"] for entry in index["objects"].values() if entry.get("status") == "built"]
     missing = [str(m) for m in maps if not m.is_file()]
     if missing:
