@@ -1,8 +1,8 @@
 """Shared fixtures: one small sensor so that jitted functions compile once per session.
 
 Most of the suite's time is XLA compilation, and the same programs come back: in both xdist
-workers (each builds the session fixtures), and wherever a command or a test jits a new closure
-of the same computation. One compilation cache for the run serves them all: a temporary folder
+workers (each builds the session fixtures), in the commands and notebook kernels the tests start,
+and wherever a command or a test jits a new closure of the same computation. One compilation cache for the run serves them all: a temporary folder
 made by the controller (every run starts cold, so timings stay honest), or the folder in
 ``TACTOJAX_TEST_JAX_CACHE`` if set (kept between runs, e.g. while iterating on one test);
 ``TACTOJAX_TEST_JAX_CACHE=off`` compiles everything afresh.
@@ -28,13 +28,17 @@ def pytest_configure(config):
         config.add_cleanup(_remove_cache_folder(os.environ[_CACHE_VARIABLE]))
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # The same for the processes the tests start (commands, notebook kernels): JAX reads these.
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ[_CACHE_VARIABLE]
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
 
 
 def _remove_cache_folder(path):
     def remove():
         import shutil
 
-        os.environ.pop(_CACHE_VARIABLE, None)
+        for variable in (_CACHE_VARIABLE, "JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"):
+            os.environ.pop(variable, None)
         shutil.rmtree(path, ignore_errors=True)
     return remove
 

@@ -175,7 +175,3 @@ def _chosen_map(localizer: Localizer, estimate: LiveEstimate | None) -> int:
     if estimate is None or estimate.object_id is None:
         return 0
     return localizer.object_ids.index(estimate.object_id)
-
-
-def take(tree, index):
-    return jax.tree.map(lambda x: x[index], tree)

@@ -36,8 +36,9 @@ from tqdm.auto import tqdm
 
 from tactojax.geometry import heightmap_to_points, take
 from tactojax.localize._active import ActiveSettings, next_grasp, propose_grasps
-from tactojax.localize._belief import BeliefSettings, empty_belief, update_belief
+from tactojax.localize._belief import BeliefSettings, empty_belief
 from tactojax.localize._evaluate import cloud_moments
+from tactojax.localize._localize import jitted_update
 from tactojax.localize._map import LocalizationMap, Touch
 from tactojax.localize._new_grasps import _errors
 from tactojax.localize._predict_touch import map_marching_grid
@@ -111,7 +112,6 @@ def run_active_episodes(
     grid = map_marching_grid(view)
     protocol = GraspsProtocol(episodes=episodes, grasps_per_episode=max_grasps, fingers=2, turns_deg=tuple(turns_deg))
     protocol_key, policy_key, noise_key = jax.random.split(key, 3)
-    update = jax.jit(update_belief, static_argnames=("settings",))
     errors = jax.jit(_errors)
     shape = (episodes, max_grasps)
     out = ActiveEpisodes(*({p: np.zeros(shape) for p in policies} for _ in range(3)),
@@ -143,7 +143,7 @@ def run_active_episodes(
                                       feature=jnp.asarray(features[finger]),
                                       opening=jnp.asarray(grasp.imprint.opening[finger], jnp.float32))
                         T_world_sensor = jax.tree.map(lambda x: x[finger], grasp.imprint.T_world_sensor)
-                        belief = update(view, belief, touch, T_world_sensor, settings=belief_settings)
+                        belief = jitted_update(view, belief, touch, T_world_sensor, belief_settings)
                         T_object_sensor.append(T_world_object.inverse() @ T_world_sensor)
                         points = heightmap_to_points(grasp.imprint.heightmap[finger], view.mm_per_px).reshape(-1, 3)
                         mean, covariance = cloud_moments(points, grasp.imprint.mask[finger].reshape(-1))

@@ -27,11 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 from jaxtyping import Array, Bool, Float, Int
-from tqdm.auto import tqdm
 
-from tactojax.localize._belief import WITHIN_MM, BeliefSettings, belief_terms, hypothesis_distances
+from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief, belief_terms, hypothesis_distances
+from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs
 from tactojax.localize._map import BeliefCalibration, LocalizationMap
-from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
 
 TEMPERATURES = tuple(float(t) for t in np.geomspace(0.002, 1.0, 28))
 """Candidate temperatures of the geometric log-likelihood."""
@@ -59,12 +58,11 @@ class BeliefRecord:
     """Hypotheses within 2 mm of the true pose, up to the object's symmetry."""
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _record_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings) -> BeliefRecord:
-    """(G * fingers + G - 1,) records of one episode: touch by touch, then every later grasp's
-    first finger alone."""
+@functools.partial(jax.jit, static_argnames=("settings",))
+def _records(view: LocalizationMap, beliefs: PoseBelief, settings: BeliefSettings) -> BeliefRecord:
+    """(N,) what calibration needs of every belief of ``beliefs`` (leading axis N)."""
 
-    def record(belief, _):
+    def record(belief: PoseBelief) -> BeliefRecord:
         geometry, similarity = jax.vmap(lambda T: belief_terms(view, belief, T, settings))(belief.T_object_reference)
         same_pose = jax.vmap(lambda T: hypothesis_distances(belief, T, symmetric=True))(belief.T_object_reference)
         # The sensor poses are given in the object frame: the reference's world pose is the truth.
@@ -73,20 +71,7 @@ def _record_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, 
         return BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
                             same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
 
-    def touch_by_touch(one_episode):  # one finger per grasp
-        return fuse_episode(view, one_episode, 1, settings, record)
-
-    # Touch by touch: the episode as G x fingers grasps of one finger each.
-    grasps = episode.openings.shape[0]
-    per_touch = jax.tree.map(lambda x: x[:, :fingers].reshape(grasps * fingers, 1, *x.shape[2:]),
-                             episode.replace(openings=jnp.zeros((grasps, fingers))))
-    per_touch = per_touch.replace(openings=jnp.repeat(episode.openings, fingers))
-    # Every later grasp's first finger alone, as a single touch is also used (and evaluated):
-    # the fit then sees as many one-touch beliefs as a robot meets.
-    later = jax.tree.map(lambda x: x[1:, :1, None], episode.replace(openings=jnp.zeros((grasps, 1))))
-    later = later.replace(openings=episode.openings[1:, None])
-    alone = jax.lax.map(lambda one: jax.tree.map(lambda x: x[0], touch_by_touch(one)), later)
-    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), touch_by_touch(per_touch), alone)
+    return jax.lax.map(record, beliefs)
 
 
 def record_beliefs(
@@ -111,8 +96,9 @@ def record_beliefs(
         (E * (G * fingers + G - 1),) records, as numpy arrays: every episode's beliefs touch by
         touch, then each of its later grasps' first-finger touch alone.
     """
-    per_episode = [jax.device_get(_record_episode(view, jax.tree.map(lambda x: x[e], episodes), fingers, settings))
-                   for e in tqdm(range(episodes.openings.shape[0]), desc="calibration episodes", disable=not progress)]
+    beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=True, settings=settings, progress=progress)
+    per_episode = [jax.device_get(_records(view, jax.tree.map(lambda x: x[e], beliefs), settings))
+                   for e in range(episodes.openings.shape[0])]
     return jax.tree.map(lambda *x: np.concatenate(x), *per_episode)
 
 

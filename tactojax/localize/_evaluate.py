@@ -31,7 +31,7 @@ from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
-from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded
 from tactojax.localize._surface import build_map_surface
 from tactojax.mapping import TactileMap
 
@@ -294,12 +294,10 @@ def evaluate_localization(
                       for f in range(fold_of.max() + 1)]
             largest = max(len(positions) for positions, _ in groups)  # one shape for every fold
             batch_size = min(BELIEF_BATCH_SIZE, largest)
-            queries_per_device = per_device(largest, mesh, batch_size)
             program = functools.partial(_belief_queries, settings=belief_settings, batch_size=batch_size, mesh=mesh)
         else:
             groups = [(np.arange(count), view)]
             batch_size = min(chunk_size, count)
-            queries_per_device = per_device(count, mesh, batch_size)
             program = functools.partial(_baseline_queries, method=method, settings=settings,
                                         points_per_touch=points_per_touch, oracle=oracle, batch_size=batch_size,
                                         mesh=mesh)
@@ -313,7 +311,7 @@ def evaluate_localization(
                          jax.tree.map(lambda x: x[index], tactile_map.T_object_sensor))
                 shared = (group_view if method.kind == "belief"
                           else (key, group_view, jnp.float32(max_opening_difference_mm)))
-                outputs.append(run_sharded(program, shared, batch, mesh=mesh, per_device=queries_per_device, bar=bar))
+                outputs.append(run_sharded(program, shared, batch, mesh=mesh, per_device=batch_size, bar=bar))
                 placed.append(positions)
         order = np.argsort(np.concatenate(placed))
         _, probability, imprint_index, errors = jax.tree.map(lambda *x: np.concatenate(x)[order], *outputs)

@@ -8,17 +8,14 @@ prior over objects). The same likelihood that weighs poses within a map weighs t
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 from tqdm.auto import tqdm
 
 from tactojax.localize._belief import BeliefSettings
-from tactojax.localize._map import BeliefCalibration, LocalizationMap
-from tactojax.localize._new_grasps import TestEpisodes, fuse_episode
+from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs, fused_steps
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, shared_shapes
 
 
 def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCalibration:
@@ -28,13 +25,6 @@ def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCa
     if not fitted:
         return BeliefCalibration.default()
     return jax.tree.map(lambda *x: jnp.float32(np.median(np.stack(x))), *fitted)
-
-
-@functools.partial(jax.jit, static_argnames=("fingers", "settings"))
-def _episode_evidence(view: LocalizationMap, episode: TestEpisodes, fingers: int,
-                      settings: BeliefSettings) -> Float[Array, "G"]:
-    """(G,) one map's belief's log evidence after each grasp of an episode."""
-    return fuse_episode(view, episode, fingers, settings, lambda belief, _: belief.log_evidence)
 
 
 def identify_episodes(
@@ -61,16 +51,13 @@ def identify_episodes(
         (E, G, M) probabilities of the M objects after 1..G grasps (a uniform prior).
     """
     calibration = BeliefCalibration.default() if calibration is None else calibration
-    count = episodes.openings.shape[0]
-    log_evidence = np.full((count, episodes.openings.shape[1], len(maps)), -np.inf)
-    steps = tqdm(total=count * len(maps), desc="beliefs (episode x map)", disable=not progress)
-    for m, view in enumerate(maps):
-        view = view.replace(calibration=calibration)
-        for e in range(count):
-            episode = jax.tree.map(lambda x: x[e], episodes)
-            log_evidence[e, :, m] = np.asarray(_episode_evidence(view, episode, fingers, settings))
-            steps.update()
-    steps.close()
+    grasps = episodes.openings.shape[1]
+    views = [view.replace(calibration=calibration) for view in maps]
+    if len({tuple(np.shape(x) for x in jax.tree.leaves(view)) for view in views}) > 1:
+        views = shared_shapes(views)  # one shape for every map: the belief compiles once for the catalog
+    log_evidence = np.stack([
+        episode_beliefs(view, episodes, fingers=fingers, settings=settings).log_evidence[:, fused_steps(grasps, fingers)]
+        for view in tqdm(views, desc="beliefs (map)", disable=not progress)], axis=-1)
     probabilities = object_probabilities(log_evidence)
     return np.where(probabilities.sum(axis=-1, keepdims=True) > 0, probabilities, 1.0 / len(maps))
 

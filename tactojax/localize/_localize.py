@@ -22,7 +22,10 @@ from tactojax.localize._map import LocalizationMap, Touch, _strong, canonical_to
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
-def _update(view, belief, touch, T_world_sensor, exclude, settings):
+def update_program(view, belief, touch, T_world_sensor, exclude, settings):
+    """The one compiled per-touch update (positional ``exclude``): :func:`jitted_update`, the live
+    :class:`~tactojax.localize.Localizer` and the active episodes all run it, so that a process
+    compiles it once per map shape and settings."""
     return update_belief(view, belief, touch, T_world_sensor, settings, exclude=exclude)
 
 
@@ -34,7 +37,7 @@ def jitted_update(view: LocalizationMap, belief: PoseBelief, touch: Touch, T_wor
     T_world_sensor = jaxlie.SE3(jnp.asarray(T_world_sensor.wxyz_xyz, jnp.float32))
     # Strong types: an updated belief has them, and a weakly typed one would compile apart.
     belief = jax.tree.map(_strong, belief)
-    return _update(view, belief, canonical_touch(touch), T_world_sensor, exclude, settings)
+    return update_program(view, belief, canonical_touch(touch), T_world_sensor, exclude, settings)
 
 
 def check_touch(view: LocalizationMap, touch: Touch, name: str = "the touch") -> None:

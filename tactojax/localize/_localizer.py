@@ -44,8 +44,9 @@ from tactojax.features import Encoder
 from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
-from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
+from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief
 from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
+from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
@@ -293,12 +294,14 @@ class Localizer:
                               feature=jax.ShapeDtypeStruct((encoder.feature_dim,), jnp.float32),
                               opening=jax.ShapeDtypeStruct((), jnp.float32))
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-        update = jax.jit(lambda view, belief, touch, T: update_belief(view, belief, touch, T, settings))
         summarise = jax.jit(lambda belief: _summarise(belief, live.modes))
         # Strongly typed, as every updated belief is (a weak type would not match them).
         self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
         # The maps share one shape (shared_shapes): one compilation serves them all.
-        self._update = update.lower(self.views[0], self._empty[0], example_touch, pose).compile()
+        # The program every per-touch update runs (localize's): a process that also localizes
+        # or evaluates compiles it once.
+        self._update = update_program.lower(self.views[0], self._empty[0], example_touch, pose, np.int32(-1),
+                                            settings).compile()
         self._summarise = summarise.lower(self._empty[0]).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
@@ -454,7 +457,7 @@ class Localizer:
         beliefs = list(beliefs)
         for m, view in enumerate(self.views):
             for touch, T_world_touch in touches:
-                beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch))
+                beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
         summaries = jax.device_get([self._summarise(b) for b in beliefs])
         probabilities = object_probabilities([s[4] for s in summaries])
         if not probabilities.any():  # no map explains the touches

@@ -19,49 +19,24 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
-from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
 from tactojax.localize._baselines import baseline_estimate, parse_method
-from tactojax.localize._belief import WITHIN_MM, BeliefSettings, empty_belief, update_belief
+from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief
+from tactojax.localize._episode_beliefs import (
+    TestEpisodes,
+    alone_steps,
+    episode_beliefs,
+    episode_touch,
+    fused_steps,
+    sequence_touches,
+)
 from tactojax.localize._evaluate import moment_rmse
-from tactojax.localize._map import LocalizationMap, Touch
-from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, per_device, run_sharded
+from tactojax.localize._map import LocalizationMap
+from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded
 
 CALIBRATION_BINS = tuple(float(x) for x in np.linspace(0.0, 1.0, 6))
 """Bins of the predicted P(error <= 2 mm) in the reliability diagram."""
-
-
-@struct.dataclass
-class TestEpisodes:
-    """E episodes of G grasps with F fingers each, as localization reads them."""
-
-    heightmaps: Float[Array, "E G F H W"]
-    """Predicted heightmaps, mm."""
-    masks: Bool[Array, "E G F H W"]
-    """Predicted (observed) contact masks."""
-    features: Float[Array, "E G F D"]
-    """Retrieval features."""
-    openings: Float[Array, "E G"]
-    """Gripper openings, mm."""
-    T_object_sensor: jaxlie.SE3
-    """(E, G, F) true sensor poses in the object (map) frame: the truth, and the kinematics
-    (only their relative poses within an episode reach the localizer)."""
-    cloud_mean: Float[Array, "E G F 3"]
-    """Mean of every touch's true contact cloud, sensor frame, mm (the error metric)."""
-    cloud_covariance: Float[Array, "E G F 3 3"]
-    """Its covariance, mm^2."""
-
-    def sensor_touches(self) -> TestEpisodes:
-        """Every grasp's sensor-finger touch (finger 0) as an episode of its own: (E * G, 1, 1) episodes."""
-        def alone(x):
-            return x[:, :, :1].reshape(-1, 1, 1, *x.shape[3:])
-
-        return TestEpisodes(heightmaps=alone(self.heightmaps), masks=alone(self.masks), features=alone(self.features),
-                            openings=self.openings.reshape(-1, 1),
-                            T_object_sensor=jax.tree.map(alone, self.T_object_sensor),
-                            cloud_mean=alone(self.cloud_mean), cloud_covariance=alone(self.cloud_covariance))
 
 
 @dataclass
@@ -165,81 +140,50 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "settings", "batch_size", "mesh"))
-def _single_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int,
-                    settings: BeliefSettings, batch_size: int, mesh):
-    """Touches localized alone: ``touches`` holds one per item (leading axis T), as (T, 1, 1)
-    episodes; (T,) errors, ``batch_size`` at a time on each device of ``mesh``."""
+@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "batch_size", "mesh"))
+def _baseline_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int, batch_size: int,
+                      mesh):
+    """Touches localized alone by a baseline: ``touches`` holds one per item (leading axis T), as
+    (T, 1, 1) episodes; (T,) errors, ``batch_size`` at a time on each device of ``mesh``."""
     def one(view, touch: TestEpisodes):
         take = lambda x: x[0, 0]  # noqa: E731
         T, m, c = jax.tree.map(take, touch.T_object_sensor), take(touch.cloud_mean), take(touch.cloud_covariance)
-        query = episode_touch(touch, 0, 0)
-        if method.kind == "belief":
-            belief = update_belief(view, empty_belief(view, settings), query, jaxlie.SE3.identity(), settings)
-            estimate, probability = belief.best, belief.probability_within()
-            nll, covered = belief.truth_scores(T)
-        else:
-            estimate = baseline_estimate(jax.random.key(0), view, query, method,
-                                         points_per_touch=points_per_touch).T_object_sensor
-            probability, nll, covered = jnp.float32(jnp.nan), jnp.float32(jnp.nan), jnp.bool_(False)
+        estimate = baseline_estimate(jax.random.key(0), view, episode_touch(touch, 0, 0), method,
+                                     points_per_touch=points_per_touch).T_object_sensor
         one_touch = lambda x: x[None]  # noqa: E731
         errors = _errors(jax.tree.map(one_touch, T), jax.tree.map(one_touch, estimate), m[None], c[None],
                          jnp.ones(1, bool), view.symmetries)
-        return (*errors, probability, nll, covered)
+        nan = jnp.float32(jnp.nan)
+        return (*errors, nan, nan, jnp.bool_(False))
 
     return over_batch(lambda view, touches: in_batches(lambda t: one(view, t), touches, batch_size), mesh)(
         view, touches)
 
 
-def episode_touch(episode: TestEpisodes, g, finger: int) -> Touch:
-    """Grasp ``g``'s touch of finger ``finger`` in one episode."""
-    return Touch(heightmap=episode.heightmaps[g, finger], mask=episode.masks[g, finger],
-                 feature=episode.features[g, finger], opening=episode.openings[g])
+@functools.partial(jax.jit, static_argnames=("fingers", "alone"))
+def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: PoseBelief, fingers: int,
+                      alone: bool):
+    """(E, N) errors and probabilities of every episode's beliefs along its touch sequence
+    (:func:`~tactojax.localize._episode_beliefs.sequence_order`): each over the touches it holds."""
+    grasps = episodes.openings.shape[1]
+    holds = jnp.asarray(sequence_touches(grasps, fingers, alone))  # (N, G * F)
 
-
-def fuse_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings, observe):
-    """Fuse an episode's grasps into one belief, grasp by grasp (``fingers`` touches each, at
-    their sensor poses: the kinematics), and return ``observe(belief, g)`` after every grasp
-    ``g``, stacked along a leading (G,) axis. Pure; the callers jit it.
-
-    To observe after every touch, pass the episode as G x F grasps of one finger each.
-    """
-    def grasp(belief, g):
-        for finger in range(fingers):
-            T_touch = jax.tree.map(lambda x: x[g, finger], episode.T_object_sensor)
-            belief = update_belief(view, belief, episode_touch(episode, g, finger), T_touch, settings)
-        return belief, observe(belief, g)
-
-    _, out = jax.lax.scan(grasp, empty_belief(view, settings), jnp.arange(episode.openings.shape[0]))
-    return out
-
-
-def _fused_episode(view: LocalizationMap, episode: TestEpisodes, fingers: int, settings: BeliefSettings):
-    """One episode's belief after each of its G grasps: (G,) errors and probabilities."""
-    grasps = episode.openings.shape[0]
-
-    def observe(belief, g):
-        # Error over every touch fused so far (grasps 0..g, the fingers used). The sensor poses
-        # are given in the object frame here, so the belief's world frame is the object's.
+    def episode(episode: TestEpisodes, beliefs: PoseBelief):
+        # The sensor poses are given in the object frame, so a belief's world frame is the object's.
         T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
-        T_estimate = belief.sensor_pose(T_true)
-        valid = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
-        errors = _errors(T_true, T_estimate, episode.cloud_mean[:, :fingers].reshape(-1, 3),
-                         episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), valid, view.symmetries)
-        return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
+        mean = episode.cloud_mean[:, :fingers].reshape(-1, 3)
+        covariance = episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3)
 
-    return fuse_episode(view, episode, fingers, settings, observe)
+        def observe(belief: PoseBelief, valid):
+            # The first touch the belief holds leads: its pose errors are reported.
+            order = jnp.argsort(~valid, stable=True)
+            T_true_, mean_, covariance_, valid_ = jax.tree.map(lambda x: x[order], (T_true, mean, covariance, valid))
+            errors = _errors(T_true_, belief.sensor_pose(T_true_), mean_, covariance_, valid_, view.symmetries)
+            return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
 
+        return jax.vmap(observe)(beliefs, holds)
 
-@functools.partial(jax.jit, static_argnames=("fingers", "settings", "batch_size", "mesh"))
-def _fused_episodes(view: LocalizationMap, episodes: TestEpisodes, fingers: int, settings: BeliefSettings,
-                    batch_size: int, mesh):
-    """Every episode's belief after each of its G grasps: (E, G) errors and probabilities,
-    ``batch_size`` episodes at a time on each device of ``mesh``."""
-    def local(view, episodes):
-        return in_batches(lambda episode: _fused_episode(view, episode, fingers, settings), episodes, batch_size)
-
-    return over_batch(local, mesh)(view, episodes)
+    return jax.vmap(episode)(episodes, beliefs)
 
 
 def evaluate_new_grasps(
@@ -258,10 +202,13 @@ def evaluate_new_grasps(
 ) -> list[EpisodeErrors]:
     """Single-touch errors of every method, and the belief fused over 1..G grasps.
 
-    Touches and episodes run as one compiled program each, their batch sharded over ``devices``
-    (a mesh with one ``batch`` axis), each device localizing ``touch_batch_size`` touches
-    (``episode_batch_size`` episodes) at once, vmapped; the program is called once per chunk of
-    a few such batches per device, which bounds the memory.
+    The belief runs along every episode's touch sequence in one compiled program
+    (:func:`~tactojax.localize._episode_beliefs.episode_beliefs`: the episode's touches fused in
+    order, then every later grasp's first finger alone); its single-touch rows are the beliefs
+    that hold one touch. The baselines localize every touch alone in a program of their own.
+    Both shard their batch over ``devices`` (a mesh with one ``batch`` axis), each device
+    localizing ``touch_batch_size`` touches (``episode_batch_size`` episodes) at once, vmapped;
+    a program is called once per chunk of a few such batches per device, which bounds the memory.
 
     Args:
         view: the object's map (its symmetries and calibration are used).
@@ -274,10 +221,11 @@ def evaluate_new_grasps(
         single_touches: localize every grasp's sensor-finger touch alone with each method
             (False: only the belief's fused episodes).
         devices: the devices the batch is sharded over (default: every local device).
-        touch_batch_size, episode_batch_size: single touches and fused episodes a device
-            localizes at once (vmapped; 1: one at a time). The results do not depend on the
-            devices; they can move by rounding with these sizes, and the belief's discrete choices
-            can follow (episodes go one at a time by default: the reference results).
+        touch_batch_size, episode_batch_size: a baseline's single touches and the belief's
+            episodes a device localizes at once (vmapped; 1: one at a time). The results do not
+            depend on the devices; they can move by rounding with these sizes, and the belief's
+            discrete choices can follow (episodes go one at a time by default: the reference
+            results).
         progress: show progress bars (per chunk).
 
     Returns:
@@ -288,6 +236,12 @@ def evaluate_new_grasps(
     if fingers not in (1, 2) or episodes.heightmaps.shape[2] < fingers:
         raise ValueError(f"fingers must be 1 or 2 and the test set must have them (it has "
                          f"{episodes.heightmaps.shape[2]})")
+    grasps = episodes.openings.shape[1]
+    belief_rows = None
+    if any(parse_method(name).kind == "belief" for name in methods):
+        beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=single_touches, settings=settings,
+                                  devices=devices, batch_size=episode_batch_size, progress=progress)
+        belief_rows = [np.asarray(x) for x in _observe_episodes(view, episodes, beliefs, fingers, single_touches)]
     mesh = batch_mesh(devices)
     touches = episodes.sensor_touches()
     count = touches.openings.shape[0]
@@ -295,21 +249,17 @@ def evaluate_new_grasps(
     results = []
     for name in methods if single_touches else ():  # the touches: (E * G, 1, 1) episodes
         method = parse_method(name)
-        program = functools.partial(_single_touches, method=method, points_per_touch=points_per_touch,
-                                    settings=settings, batch_size=touch_batch_size, mesh=mesh)
-        with tqdm(total=count, desc=f"single touches ({method.name})", unit="touch", disable=not progress) as bar:
-            out = run_sharded(program, view, touches, mesh=mesh, bar=bar,
-                              per_device=per_device(count, mesh, touch_batch_size))
+        if method.kind == "belief":  # (E, G) -> (E * G,), episode-major as the touches
+            out = [x[:, alone_steps(grasps, fingers)].reshape(-1) for x in belief_rows]
+        else:
+            program = functools.partial(_baseline_touches, method=method, points_per_touch=points_per_touch,
+                                        batch_size=touch_batch_size, mesh=mesh)
+            with tqdm(total=count, desc=f"single touches ({method.name})", unit="touch",
+                      disable=not progress) as bar:
+                out = run_sharded(program, view, touches, mesh=mesh, bar=bar,
+                                  per_device=touch_batch_size)
         results.append(EpisodeErrors(method.name, 1, 1, False, *out))
-    if any(parse_method(name).kind == "belief" for name in methods):
-        count = episodes.openings.shape[0]
-        episode_batch_size = min(episode_batch_size, count)
-        program = functools.partial(_fused_episodes, fingers=fingers, settings=settings,
-                                    batch_size=episode_batch_size, mesh=mesh)
-        with tqdm(total=count, desc=f"fused episodes ({fingers} finger{'s' * (fingers > 1)})", unit="episode",
-                  disable=not progress) as bar:
-            out = run_sharded(program, view, episodes, mesh=mesh, bar=bar,
-                              per_device=per_device(count, mesh, episode_batch_size))
-        for g in range(episodes.openings.shape[1]):  # out: (E, G) each
-            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, g] for x in out)))
+    if belief_rows is not None:
+        for g, step in enumerate(fused_steps(grasps, fingers)):
+            results.append(EpisodeErrors("belief", fingers, g + 1, True, *(x[:, step] for x in belief_rows)))
     return results

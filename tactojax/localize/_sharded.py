@@ -7,12 +7,13 @@ device's slice with ``jax.shard_map`` (no communication: every device computes w
 would on its slice, :func:`in_batches` of a fixed size). :func:`run_sharded` pads the batch to a
 multiple of the chunk (devices x items per device; copies of the last item), places every chunk with
 ``NamedSharding(mesh, PartitionSpec("batch"))``, calls the program once per chunk (the same
-shapes: one compilation), shows progress per chunk and drops the padding.
+shapes: one compilation), shows progress per chunk and drops the padding. A chunk's shape depends
+on the batch size and the devices only, never on how many items there are: evaluations of sets of
+any size (a calibration set, then a test set) share one compilation.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 
 import jax
@@ -23,10 +24,6 @@ from tqdm.auto import tqdm
 
 BATCH_AXIS = "batch"
 """The mesh axis the batch is split over."""
-BATCHES_PER_CALL = 4
-"""Batches a device computes per call: the progress bar moves once per call."""
-
-
 def batch_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
     """A one-axis mesh (``batch``) over ``devices`` (default: every local device)."""
     devices = jax.local_devices() if devices is None else list(devices)
@@ -50,12 +47,6 @@ def in_batches(one: Callable, items, batch_size: int):
     if batch_size == 1:
         return jax.lax.map(one, items)
     return jax.lax.map(one, items, batch_size=batch_size)
-
-
-def per_device(count: int, mesh: Mesh, batch_size: int, batches: int = BATCHES_PER_CALL) -> int:
-    """Items per device and call: ``batches`` batches of ``batch_size``, fewer batches when
-    ``count`` items fill less than one call."""
-    return batch_size * max(1, min(batches, math.ceil(count / (mesh.devices.size * batch_size))))
 
 
 def run_sharded(program: Callable, shared, batch, *, mesh: Mesh, per_device: int, bar: tqdm | None = None):

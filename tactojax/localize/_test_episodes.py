@@ -13,7 +13,7 @@ import numpy as np
 from tactojax.features import encode_images
 from tactojax.geometry import heightmap_to_points
 from tactojax.localize._evaluate import cloud_moments
-from tactojax.localize._new_grasps import TestEpisodes
+from tactojax.localize._episode_beliefs import TestEpisodes
 from tactojax.mapping import observed_contact
 from tactojax.shape import predict_batch
 from tactojax.storage._test_grasps import read_test_grasps

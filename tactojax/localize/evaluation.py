@@ -18,7 +18,7 @@ from tactojax.localize._identify import evaluate_identification as evaluate_iden
 from tactojax.localize._identify_episodes import identify_episodes as identify_episodes
 from tactojax.localize._map import map_touch as map_touch
 from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
-from tactojax.localize._new_grasps import TestEpisodes as TestEpisodes
+from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._test_episodes import load_test_episodes as load_test_episodes
 
