@@ -27,10 +27,12 @@ def pytest_configure(config):
         os.environ[_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="tactojax-jax-cache-")
         config.add_cleanup(_remove_cache_folder(os.environ[_CACHE_VARIABLE]))
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # Every program, however quick to compile: the eager operations (one small program each)
+    # come back in every process, and together they take as long as the large ones.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # The same for the processes the tests start (commands, notebook kernels): JAX reads these.
     os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ[_CACHE_VARIABLE]
-    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
 
 def _remove_cache_folder(path):

@@ -7,7 +7,11 @@ import numpy as np
 
 def wxyz_xyz(T) -> list[float]:
     """A pose as 7 JSON numbers (wxyz, then xyz in mm)."""
-    return np.asarray(T.wxyz_xyz, np.float64).round(6).tolist()
+    return _rounded(T.wxyz_xyz)
+
+
+def _rounded(wxyz_xyz) -> list[float]:
+    return np.asarray(wxyz_xyz, np.float64).round(6).tolist()
 
 
 def position_and_angles(T) -> tuple[str, str]:
@@ -31,17 +35,14 @@ def belief_summary(belief, modes: int = 3) -> dict:
     """
     import jax
 
-    mode_of, mass = jax.device_get(belief.modes())
-    del mode_of
-    order = [int(i) for i in np.argsort(-mass)[:modes] if mass[i] >= MIN_MODE_PROBABILITY]
-    take = lambda T, i: jax.tree.map(lambda x: x[i], T)  # noqa: E731
-    listed = []
-    for index in order:
-        T_object_sensor = take(belief.T_object_reference, index)
-        listed.append({"probability": float(mass[index]),
-                       "T_world_object_wxyz_xyz": wxyz_xyz(belief.T_world_reference @ T_object_sensor.inverse()),
-                       "T_object_sensor_wxyz_xyz": wxyz_xyz(T_object_sensor)})
-    return {"T_world_object_wxyz_xyz": wxyz_xyz(belief.T_world_object),
-            "T_object_sensor_wxyz_xyz": wxyz_xyz(belief.best),
-            "probability_within_2mm": float(belief.probability_within(2.0)),
-            "touches": int(belief.touches), "log_evidence": float(belief.log_evidence), "modes": listed}
+    from tactojax.localize import belief_digest
+
+    digest = jax.device_get(belief_digest(belief, modes))
+    listed = [{"probability": float(p), "T_world_object_wxyz_xyz": _rounded(T_world),
+               "T_object_sensor_wxyz_xyz": _rounded(T_object)}
+              for p, T_world, T_object in zip(digest.mode_probability, digest.mode_T_world_object,
+                                               digest.mode_T_object_sensor) if p >= MIN_MODE_PROBABILITY]
+    return {"T_world_object_wxyz_xyz": _rounded(digest.T_world_object),
+            "T_object_sensor_wxyz_xyz": _rounded(digest.T_object_sensor),
+            "probability_within_2mm": float(digest.probability_within),
+            "touches": int(digest.touches), "log_evidence": float(digest.log_evidence), "modes": listed}

@@ -18,6 +18,8 @@ A typical session::
 """
 
 from tactojax._moved import moved_names
+from tactojax.localize._belief import BeliefDigest as BeliefDigest
+from tactojax.localize._belief import belief_digest as belief_digest
 from tactojax.localize._belief import BeliefSettings as BeliefSettings
 from tactojax.localize._belief import empty_belief as empty_belief
 from tactojax.localize._belief import PoseBelief as PoseBelief
@@ -45,6 +47,7 @@ from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 __all__ = [
     "WITHIN_MM",
     "BeliefCalibration",
+    "BeliefDigest",
     "BeliefSettings",
     "IdentificationResult",
     "LiveEstimate",
@@ -56,6 +59,7 @@ __all__ = [
     "Touch",
     "Tracker",
     "TrackingSettings",
+    "belief_digest",
     "calibration_from_json",
     "calibration_to_json",
     "empty_belief",

@@ -31,6 +31,7 @@ once per map size and settings, and a belief is a pytree that a control loop car
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -210,6 +211,42 @@ class PoseBelief:
         near = hypothesis_distances(self, T_object_reference, symmetric=True) <= WITHIN_MM
         mass = jnp.sum(jnp.where(near, self.probabilities, 0.0))
         return -jnp.log(jnp.maximum(mass, 1e-6)), jnp.any(near & self.credible_set(0.9))
+
+
+@struct.dataclass
+class BeliefDigest:
+    """What a belief reports, as arrays (:func:`belief_digest`): the live loop's estimate and the
+    commands' output."""
+
+    T_world_object: Float[Array, "7"]
+    """The object's most likely pose in the world frame (wxyz_xyz, mm)."""
+    T_object_sensor: Float[Array, "7"]
+    """The first touch's sensor in the object frame, at the most likely pose."""
+    probability_within: Float[Array, ""]
+    """P(the best pose is within 2 mm), up to the object's symmetry."""
+    touches: Int[Array, ""]
+    """Touches the belief holds."""
+    log_evidence: Float[Array, ""]
+    """:attr:`PoseBelief.log_evidence`."""
+    mode_probability: Float[Array, "K"]
+    """The K most probable modes' probabilities (0: no such mode)."""
+    mode_T_world_object: Float[Array, "K 7"]
+    """Their object poses in the world frame."""
+    mode_T_object_sensor: Float[Array, "K 7"]
+    """Their first-touch sensor poses in the object frame."""
+
+
+@functools.partial(jax.jit, static_argnames=("modes",))
+def belief_digest(belief: PoseBelief, modes: int = 3) -> BeliefDigest:
+    """A belief's estimate, confidence and ``modes`` most probable modes, in one compiled call."""
+    _, mass = belief.modes()
+    probability, index = jax.lax.top_k(mass, modes)
+    T_object_sensor = take(belief.T_object_reference, index)
+    return BeliefDigest(T_world_object=belief.T_world_object.wxyz_xyz, T_object_sensor=belief.best.wxyz_xyz,
+                        probability_within=belief.probability_within(), touches=belief.touches,
+                        log_evidence=belief.log_evidence, mode_probability=probability,
+                        mode_T_world_object=(belief.T_world_reference @ T_object_sensor.inverse()).wxyz_xyz,
+                        mode_T_object_sensor=T_object_sensor.wxyz_xyz)
 
 
 def reference_cloud(belief: PoseBelief) -> tuple[Float[Array, "N 3"], Bool[Array, "N"]]:

@@ -44,7 +44,7 @@ from tactojax.features import Encoder
 from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
-from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief
+from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
 from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
 from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
@@ -238,16 +238,6 @@ def gripper_motion(previous: np.ndarray, gripper: np.ndarray) -> tuple[float, fl
     return float(np.linalg.norm(np.asarray(gripper[4:], np.float64) - previous[4:])), float(np.rad2deg(angle))
 
 
-def _summarise(belief: PoseBelief, modes: int):
-    """What a live estimate reports of a belief: T_world_object (7,), P(within 2 mm), the
-    ``modes`` most probable modes' T_world_object (modes, 7) and probabilities, the log evidence."""
-    _, mass = belief.modes()
-    probability, index = jax.lax.top_k(mass, modes)
-    T_world_modes = belief.T_world_reference @ jax.tree.map(lambda x: x[index], belief.T_object_reference).inverse()
-    return (belief.T_world_object.wxyz_xyz, belief.probability_within(), T_world_modes.wxyz_xyz, probability,
-            belief.log_evidence)
-
-
 class Localizer:
     """Identify and localize a grasped object from camera frames, at camera rate (see the module docstring).
 
@@ -294,7 +284,6 @@ class Localizer:
                               feature=jax.ShapeDtypeStruct((encoder.feature_dim,), jnp.float32),
                               opening=jax.ShapeDtypeStruct((), jnp.float32))
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-        summarise = jax.jit(lambda belief: _summarise(belief, live.modes))
         # Strongly typed, as every updated belief is (a weak type would not match them).
         self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
         # The maps share one shape (shared_shapes): one compilation serves them all.
@@ -302,7 +291,7 @@ class Localizer:
         # or evaluates compiles it once.
         self._update = update_program.lower(self.views[0], self._empty[0], example_touch, pose, np.int32(-1),
                                             settings).compile()
-        self._summarise = summarise.lower(self._empty[0]).compile()
+        self._summarise = belief_digest.lower(self._empty[0], live.modes).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
                                                            pose.wxyz_xyz).compile()
@@ -459,14 +448,15 @@ class Localizer:
             for touch, T_world_touch in touches:
                 beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
         summaries = jax.device_get([self._summarise(b) for b in beliefs])
-        probabilities = object_probabilities([s[4] for s in summaries])
+        probabilities = object_probabilities([s.log_evidence for s in summaries])
         if not probabilities.any():  # no map explains the touches
             return beliefs, None
         chosen = int(np.argmax(probabilities))
-        T_world_object, within, T_modes, mode_probability, _ = summaries[chosen]
-        modes = tuple((jaxlie.SE3(np.asarray(T)), float(p)) for T, p in zip(T_modes, mode_probability) if p > 0)
+        digest = summaries[chosen]
+        modes = tuple((jaxlie.SE3(np.asarray(T)), float(p))
+                      for T, p in zip(digest.mode_T_world_object, digest.mode_probability) if p > 0)
         return beliefs, (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
-                         np.asarray(T_world_object, np.float32), float(within), modes)
+                         np.asarray(digest.T_world_object, np.float32), float(digest.probability_within), modes)
 
     def _land(self, beliefs: list[PoseBelief], summary) -> None:
         """An update's result becomes the localizer's belief."""

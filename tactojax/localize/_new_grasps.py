@@ -183,7 +183,9 @@ def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: Po
 
         return jax.vmap(observe)(beliefs, holds)
 
-    return jax.vmap(episode)(episodes, beliefs)
+    # One episode at a time: the credible sets compare every pair of hypotheses under every
+    # symmetric copy, too much memory to hold for all episodes at once.
+    return jax.lax.map(lambda pair: episode(*pair), (episodes, beliefs))
 
 
 def evaluate_new_grasps(

@@ -1,13 +1,17 @@
 """Evaluation protocols and metrics of localization and identification (paper section VIII).
 
 Leave-one-out on a map's own imprints (:func:`evaluate_localization`, the paper's Table III),
-*new* grasps that are not in the map (:func:`evaluate_new_grasps`, the headline), the map-size
+*new* grasps that are not in the map (:func:`evaluate_new_grasps`, the headline; the beliefs
+along each episode's touches: :func:`episode_beliefs`), the map-size
 study, identification among maps, and the error metric: the RMSE between a touch's true contact
 cloud at its true and its estimated pose (:func:`moment_rmse`, from the cloud's moments).
 """
 
 from tactojax.localize._active import belief_error as belief_error
 from tactojax.localize._calibrate import record_beliefs as record_beliefs
+from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
+from tactojax.localize._episode_beliefs import episode_beliefs as episode_beliefs
+from tactojax.localize._episode_beliefs import sequence_order as sequence_order
 from tactojax.localize._evaluate import LocalizationErrors as LocalizationErrors
 from tactojax.localize._evaluate import cloud_moments as cloud_moments
 from tactojax.localize._evaluate import evaluate_localization as evaluate_localization
@@ -18,7 +22,6 @@ from tactojax.localize._identify import evaluate_identification as evaluate_iden
 from tactojax.localize._identify_episodes import identify_episodes as identify_episodes
 from tactojax.localize._map import map_touch as map_touch
 from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
-from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._test_episodes import load_test_episodes as load_test_episodes
 
@@ -28,6 +31,7 @@ __all__ = [
     "TestEpisodes",
     "belief_error",
     "cloud_moments",
+    "episode_beliefs",
     "evaluate_identification",
     "evaluate_localization",
     "evaluate_new_grasps",
@@ -38,4 +42,5 @@ __all__ = [
     "moment_rmse",
     "oracle_imprints",
     "record_beliefs",
+    "sequence_order",
 ]
