@@ -107,7 +107,8 @@ def active_episode(
         max_grasps: grasps charged at most (K).
         candidates: grasps proposed per choice.
         settings: proposal, ranking and stopping rule (``fingers`` as the gripper's sensors).
-        recorder: if given, every fused grasp's sensor-finger touch is also recorded.
+        recorder: if given, every fused grasp's touches are also recorded (both fingers when there
+            is a second camera: ``finger`` 0 and 1).
         object_id: the object's name in the records.
         settle_s, max_skew_s, clock: as :func:`~tactojax.hardware.record_protocol`.
         approach_mm: approach and retreat distance (:func:`~tactojax.hardware.execute_grasp`).
@@ -152,7 +153,7 @@ def active_episode(
             T_world_gripper, gain = take(proposals, best), float(ranking.gain[best])
             choice_s = time.perf_counter() - start
         executed = execute_grasp(robot, T_world_gripper, while_closed=hold, approach_mm=approach_mm)
-        before, held = localizer.grasps, None
+        before, held, second = localizer.grasps, None, None
         if executed.held is not None:
             touch, second = executed.held
             held = jaxlie.SE3(np.asarray(touch.T_world_gripper.wxyz_xyz, np.float32))
@@ -160,6 +161,8 @@ def active_episode(
         fused = localizer.grasps > before
         if fused and recorder is not None:
             recorder.write(touch, object_id=object_id)
+            if second is not None:  # the opposite jaw's frame, with the same opening and gripper pose
+                recorder.write(touch.replace(image=second), object_id=object_id, finger=1)
         charged += 1 if chosen == "active" or fused else 0
         belief = localizer.beliefs[_chosen_map(localizer, estimate)] if localizer.grasps else None
         stop = belief is not None and bool(should_stop(belief, settings.stop_probability))

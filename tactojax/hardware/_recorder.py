@@ -24,7 +24,7 @@ import jaxlie
 import numpy as np
 from tqdm.auto import tqdm
 
-from tactojax.geometry import sensor_pose
+from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.hardware._camera import Camera
 from tactojax.hardware._pose_source import PoseSource, StaleDataError
 from tactojax.hardware._robot import Robot
@@ -46,9 +46,12 @@ class Recorder:
 
     Records hold ``image`` (H, W, 3) uint8, ``timestamp_s``, ``opening_mm``, ``T_world_gripper``,
     ``T_world_sensor`` (from the gripper kinematics), ``T_world_object`` (7,) wxyz + xyz mm
-    (identity when the object's pose is not known: fixed in the world), ``object_id``, and the
-    grasp's index in its plan (-1 for passive recordings). Appending to an existing recording
-    of the same sensor continues it.
+    (identity when the object's pose is not known: fixed in the world), ``object_id``, the
+    grasp's index in its plan (-1 for passive recordings), and ``finger``: 0 for the sensor on
+    the gripper's sensor jaw, 1 for a second sensor on the opposite jaw (its pose from
+    :func:`~tactojax.geometry.opposite_sensor_pose`). Appending to an existing recording of the
+    same sensor continues it (a recording made before the ``finger`` field holds first-finger
+    touches only).
 
     Args:
         path: dataset directory.
@@ -69,16 +72,25 @@ class Recorder:
         return len(self._writer)
 
     def write(self, touch: SynchronisedTouch, *, object_id: str, T_world_object: jaxlie.SE3 | None = None,
-              plan_index: int = -1) -> None:
-        """Append one touch; it is on disk (and listed) when this returns."""
+              plan_index: int = -1, finger: int = 0) -> None:
+        """Append one touch (``finger`` 1: the opposite jaw's sensor, ``touch.image`` its frame);
+        it is on disk (and listed) when this returns."""
         if touch.image.shape != (*self.spec.shape, 3) or touch.image.dtype != np.uint8:
             raise ValueError(f"a touch image must be {(*self.spec.shape, 3)} uint8, got {touch.image.shape} "
                              f"{touch.image.dtype}")
         if not (math.isfinite(touch.opening_mm) and touch.opening_mm > 0):
             raise ValueError(f"a touch needs a positive gripper opening, got {touch.opening_mm} mm")
+        if finger not in (0, 1):
+            raise ValueError(f"finger must be 0 (the sensor jaw) or 1 (the opposite jaw), got {finger}")
+        schema = self._writer.schema
+        with_finger = schema is None or "finger" in schema
+        if finger == 1 and not with_finger:
+            raise ValueError(f"the recording at {self._writer.path} predates the finger field: record both "
+                             "fingers into a new recording")
         T_world_gripper = np.asarray(touch.T_world_gripper.wxyz_xyz, np.float32)
-        T_world_sensor = sensor_pose(jaxlie.SE3(T_world_gripper), np.float32(touch.opening_mm))
-        self._writer.append({
+        kinematics = opposite_sensor_pose if finger == 1 else sensor_pose
+        T_world_sensor = kinematics(jaxlie.SE3(T_world_gripper), np.float32(touch.opening_mm))
+        record = {
             "image": touch.image,
             "timestamp_s": np.float64(touch.timestamp_s),
             "opening_mm": np.float32(touch.opening_mm),
@@ -88,7 +100,10 @@ class Recorder:
                                else np.asarray(T_world_object.wxyz_xyz, np.float32)),
             "object_id": np.str_(object_id),
             "plan_index": np.int64(plan_index),
-        })
+        }
+        if with_finger:
+            record["finger"] = np.int64(finger)
+        self._writer.append(record)
 
     def close(self) -> None:
         self._writer.close()

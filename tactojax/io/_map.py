@@ -274,7 +274,8 @@ def read_grasps(path, *, object_id: str | None = None) -> dict:
     """The grasps of one object from a dataset, as map building needs them.
 
     Args:
-        path: dataset directory (mapping protocol, or a real recording).
+        path: dataset directory (mapping protocol, or a real recording: its sensor jaw's
+            touches, ``finger`` 0, when it holds both fingers).
         object_id: which object (required when the dataset holds several).
 
     Returns:
@@ -298,7 +299,10 @@ def read_grasps(path, *, object_id: str | None = None) -> dict:
     if object_id not in names:
         raise ValueError(f"object {object_id!r} is not in dataset {path} (have {names})")
     index = np.flatnonzero(objects == object_id)
-    if "finger" in dataset.fields and np.any(dataset.read(["finger"], index)["finger"] != 0):
+    recording = dataset.metadata.get("protocol", {}).get("name") == "recording"
+    if "finger" in dataset.fields and recording:  # a robot's recording: its sensor jaw's touches
+        index = index[dataset.read(["finger"], index)["finger"] == 0]
+    elif "finger" in dataset.fields and np.any(dataset.read(["finger"], index)["finger"] != 0):
         raise ValueError(f"dataset {path} holds second-finger imprints (finger 1, a sensor on the opposite jaw, "
                          "from --fingers 2): maps are built from the gripper's sensor jaw; read it as a test set "
                          "(read_test_grasps, eval-localization --test) instead")

@@ -53,6 +53,7 @@ def test_record_runs_an_active_episode_on_the_simulated_cell(cylinder_map, looku
     assert rows[0]["chosen"] == "first" and rows[-1]["grasp"] <= 2
     assert all(row["chosen"] == "active" for row in rows if row["grasp"] == 2)
     assert all(np.isfinite(row["error_mm"]) and 0.0 <= row["probability_within_2mm"] <= 1.0 for row in fused)
-    # One touch (the sensor finger's) of every fused grasp is on disk.
-    assert len(open_dataset(recording).read(["opening_mm"])["opening_mm"]) == len(fused) >= 1
+    # Both fingers' touches of every fused grasp are on disk, sensor jaw first.
+    fingers = open_dataset(recording).read(["finger"])["finger"]
+    assert fingers.tolist() == [0, 1] * len(fused) and len(fused) >= 1
     assert (tmp_path / "episode.png").stat().st_size > 0

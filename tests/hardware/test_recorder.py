@@ -79,3 +79,41 @@ def test_bad_touches_are_refused_before_anything_is_written(tmp_path, small_spec
             recorder.write(touch(small_spec, opening=float("nan")), object_id="x")
         recorder.write(touch(small_spec), object_id="x")
     assert len(open_dataset(tmp_path / "r")) == 1
+
+
+def test_both_fingers_are_recorded_at_their_jaws_and_maps_read_the_sensor_jaw(tmp_path, small_spec):
+    from tactojax.geometry import opposite_sensor_pose, sensor_pose
+
+    first = touch(small_spec)
+    with Recorder(tmp_path / "r", small_spec) as recorder:
+        recorder.write(first, object_id="x")
+        recorder.write(first.replace(image=np.full_like(first.image, 7)), object_id="x", finger=1)
+        with pytest.raises(ValueError, match="finger must be 0"):
+            recorder.write(first, object_id="x", finger=2)
+    data = open_dataset(tmp_path / "r").read(["finger", "T_world_sensor", "image"])
+    assert data["finger"].tolist() == [0, 1] and np.all(data["image"][1] == 7)
+    for finger, kinematics in ((0, sensor_pose), (1, opposite_sensor_pose)):
+        expected = kinematics(first.T_world_gripper, np.float32(first.opening_mm)).wxyz_xyz
+        np.testing.assert_allclose(data["T_world_sensor"][finger], np.asarray(expected), atol=1e-5)
+    # The jaws face each other: the two sensors sit an opening apart.
+    assert np.linalg.norm(data["T_world_sensor"][0, 4:] - data["T_world_sensor"][1, 4:]) > first.opening_mm / 2
+    grasps = read_grasps(tmp_path / "r")
+    assert grasps["index"].tolist() == [0]  # a map reads the sensor jaw's touches
+
+
+def test_a_recording_made_before_the_finger_field_continues_with_the_first_finger(tmp_path, small_spec):
+    from tactojax.io import DatasetWriter
+
+    first = touch(small_spec)
+    with Recorder(tmp_path / "r", small_spec) as recorder:
+        recorder.write(first, object_id="x")
+    # The same recording as an older version wrote it: no finger field.
+    old = open_dataset(tmp_path / "r")
+    record = {name: value[0] for name, value in old.read([f for f in old.fields if f != "finger"]).items()}
+    with DatasetWriter(tmp_path / "old", metadata=old.metadata, chunk_size=1) as writer:
+        writer.append(record)
+    with Recorder(tmp_path / "old", small_spec) as recorder:
+        recorder.write(first, object_id="x")
+        with pytest.raises(ValueError, match="predates the finger field"):
+            recorder.write(first, object_id="x", finger=1)
+    assert len(open_dataset(tmp_path / "old")) == 2
