@@ -113,9 +113,7 @@ def beliefs_along(view: LocalizationMap, episode: TestEpisodes, fingers: int, al
         g, f, restart = item
         belief = jax.tree.map(lambda e, b: jnp.where(restart, e, b), empty, belief)
         T_touch = jax.tree.map(lambda x: x[g, f], episode.T_object_sensor)
-        touch = Touch(heightmap=episode.heightmaps[g, f], mask=episode.masks[g, f], feature=episode.features[g, f],
-                      opening=episode.openings[g])
-        belief = update_belief(view, belief, touch, T_touch, settings)
+        belief = update_belief(view, belief, episode_touch(episode, g, f), T_touch, settings)
         return belief, belief
 
     _, beliefs = jax.lax.scan(step, empty, (jnp.asarray(grasp), jnp.asarray(finger), jnp.asarray(reset)))

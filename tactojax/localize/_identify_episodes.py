@@ -52,9 +52,8 @@ def identify_episodes(
     """
     calibration = BeliefCalibration.default() if calibration is None else calibration
     grasps = episodes.openings.shape[1]
-    views = [view.replace(calibration=calibration) for view in maps]
-    if len({tuple(np.shape(x) for x in jax.tree.leaves(view)) for view in views}) > 1:
-        views = shared_shapes(views)  # one shape for every map: the belief compiles once for the catalog
+    # One shape for every map: the belief compiles once for the catalog.
+    views = shared_shapes([view.replace(calibration=calibration) for view in maps])
     log_evidence = np.stack([
         episode_beliefs(view, episodes, fingers=fingers, settings=settings).log_evidence[:, fused_steps(grasps, fingers)]
         for view in tqdm(views, desc="beliefs (map)", disable=not progress)], axis=-1)

@@ -224,7 +224,8 @@ def catalog_symmetries(object_id: str) -> jaxlie.SE3:
 
 
 def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
-    """The maps padded to one shape, so that everything that reads them compiles once for all:
+    """The maps padded to one shape, so that everything that reads them compiles once for all
+    (maps that already share one are returned as they are):
     invalid imprints up to the largest map's count, surface grids extended on their far sides with
     unknown cells (NaN) up to the largest grid's, symmetry lists with identity copies up to the
     longest (a copy of the identity changes no distance up to symmetry).
@@ -239,6 +240,8 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
                         ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.packed_heightmaps.shape[1:])):
         if len({value(v) for v in views}) > 1:
             raise ValueError(f"the maps differ in {name} ({[value(v) for v in views]}): they cannot share one shape")
+    if len({tuple(jnp.shape(x) for x in jax.tree.leaves(view)) for view in views}) == 1:
+        return views  # already one shape (maps padded before)
     count = max(len(v) for v in views)
     grid = tuple(max(v.surface.distance.shape[axis] for v in views) for axis in range(3))
     copies = max(v.symmetries.wxyz_xyz.shape[0] for v in views)

@@ -210,7 +210,7 @@ def evaluate_new_grasps(
     that hold one touch. The baselines localize every touch alone in a program of their own.
     Both shard their batch over ``devices`` (a mesh with one ``batch`` axis), each device
     localizing ``touch_batch_size`` touches (``episode_batch_size`` episodes) at once, vmapped;
-    a program is called once per chunk of a few such batches per device, which bounds the memory.
+    a program is called once per such batch on every device, which bounds the memory.
 
     Args:
         view: the object's map (its symmetries and calibration are used).

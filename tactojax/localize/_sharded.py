@@ -24,6 +24,8 @@ from tqdm.auto import tqdm
 
 BATCH_AXIS = "batch"
 """The mesh axis the batch is split over."""
+
+
 def batch_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
     """A one-axis mesh (``batch``) over ``devices`` (default: every local device)."""
     devices = jax.local_devices() if devices is None else list(devices)
