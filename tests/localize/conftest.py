@@ -87,8 +87,9 @@ def ridges_map():
     return make_map(ridges, [sensor_pose(x, y, 10.0) for x, y in GRID], "ridges")
 
 
-SURFACE = SurfaceSettings(pitch_mm=0.25, reach_mm=1.0, margin_mm=2.0)
-"""The synthetic maps' surface grid (finer than the catalog's: their presses are 0.5 mm/px)."""
+SURFACE = SurfaceSettings(pitch_mm=0.25, reach_mm=1.0, margin_mm=2.0, min_depth_mm=0.0)
+"""The synthetic maps' surface grid (finer than the catalog's: their presses are 0.5 mm/px;
+their heightmaps are exact renders, without a gel skirt to leave out)."""
 
 
 @pytest.fixture(scope="session")

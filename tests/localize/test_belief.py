@@ -14,7 +14,8 @@ from tactojax.localize._belief import calibrated_log_likelihood, touch_terms
 from tactojax.localize._likelihood import LikelihoodSettings, point_log_likelihoods
 from tactojax.localize._localize import jitted_update as update
 from tactojax.localize._points import TouchEvidence, touch_evidence
-from tactojax.localize._surface import MapSurface
+from tactojax.localize._surface import MapSurface, build_map_surface
+from tactojax.mapping import pack_heightmaps
 
 CALIBRATION = BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(1.0),
                                 fusion_exponent=jnp.float32(0.5))
@@ -25,11 +26,13 @@ def _evidence(touch, view, settings):
                           free_count=settings.free_points)
 
 
-def test_surface_matches_a_brute_force_reference(bumps_map, bumps_view):
-    """Signed distance to the tangent plane of the nearest stored point (NumPy, all points), at
-    points near the surface; the stored points themselves lie on it."""
+def test_surface_matches_a_brute_force_reference(bumps_map, bumps_view, synthetic):
+    """Signed distance to the tangent plane of the nearest stored point (NumPy, all points
+    indented at least ``min_depth_mm``), at points near the surface; the stored points
+    themselves lie on it."""
     surface = bumps_view.surface
-    valid = np.asarray(bumps_map.point_valid)
+    depth = -np.asarray(bumps_map.points)[..., 2]
+    valid = np.asarray(bumps_map.point_valid) & (depth >= synthetic.surface.min_depth_mm)
     points = np.asarray(bumps_map.points_object)[valid]
     normals = np.asarray(bumps_map.normals_object)[valid]
     rng = np.random.default_rng(0)
@@ -44,6 +47,20 @@ def test_surface_matches_a_brute_force_reference(bumps_map, bumps_view):
     assert np.median(np.abs(np.asarray(on_surface))) < 0.02
     far, far_known = surface.signed_distance(jnp.asarray([[0.0, 0.0, 50.0], [500.0, 0.0, 0.0]]))
     assert not np.any(np.asarray(far_known)) and np.all(np.asarray(far) == 0.0)
+
+
+def test_shallow_stored_points_make_no_surface(bumps_map, bumps_view, synthetic):
+    """A map whose every imprint is only grazed (indented less than ``min_depth_mm``: the gel's
+    skirt around an edge) knows no surface; the same points, trusted, make one."""
+    surface = dataclasses.replace(synthetic.surface, min_depth_mm=0.3)
+    grazed = bumps_map.replace(packed_heightmaps=pack_heightmaps(
+        jnp.minimum(bumps_map.heightmaps, 0.9 * surface.min_depth_mm), bumps_map.masks))
+    probes = jnp.asarray(np.asarray(grazed.points_object)[np.asarray(grazed.point_valid)][::11])
+    _, known = build_map_surface(grazed, surface, grid_like=bumps_view.surface).signed_distance(probes)
+    assert not np.any(np.asarray(known))
+    trusted = dataclasses.replace(surface, min_depth_mm=0.0)
+    distance, known = build_map_surface(grazed, trusted, grid_like=bumps_view.surface).signed_distance(probes)
+    assert np.all(np.asarray(known)) and np.median(np.abs(np.asarray(distance))) < 0.02
 
 
 def test_likelihood_matches_a_numpy_reference():
