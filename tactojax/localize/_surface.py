@@ -1,11 +1,11 @@
 """The whole map's surface as one signed-distance grid: where a touch fits, at any pose.
 
 Every contact point a map stores (its tactile map's sampled points, object frame, with their
-normals) pressed deeper than ``min_depth_mm`` is a small planar sample of the object's surface.
-:func:`build_map_surface` turns them
-into a dense grid over the object: at every cell within ``reach_mm`` of a stored point, the
-*signed* distance from the cell to the tangent plane of its nearest stored point (positive
-outside the object, along the stored normal; NaN farther away: the map says nothing there).
+normals) that the gel felt deeper than ``min_depth_mm`` is a small planar sample of the object's
+surface. :func:`build_map_surface` turns them into a dense grid over the object: at every cell
+within ``reach_mm`` of a stored point, the *signed* distance from the cell to the tangent plane
+of its nearest stored point (positive outside the object, along the stored normal; NaN farther
+away: the map says nothing there).
 A touch is then scored at any hypothesis by one trilinear look-up per point, the opposite
 finger's touch and a touch that lands between stored imprints included, against the surface
 that all the imprints felt together.
