@@ -13,8 +13,9 @@ def add_parser(commands) -> None:
         description="Run the pose belief over calibration grasps of each map's object (episodes of grasps "
                     "at known poses: `tactojax simulate OBJECT --protocol grasps --seed S`, with a seed of "
                     "their own, never the test set's) and fit its temperature, appearance weight and "
-                    "fusion exponent so that its P(within 2 mm) is calibrated; the fit is stored in the "
-                    "map's header, where every command that runs the belief reads it.")
+                    "fusion exponent (the appearance weight relative to the temperature by the likelihood of the "
+                    "true pose, then the temperature and exponent so that its P(within 2 mm) is calibrated); the "
+                    "fit is stored in the map's header, where every command that runs the belief reads it.")
     parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (rewritten in place)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
                         help="new-grasps datasets holding each map's object (`--protocol grasps`)")
@@ -73,8 +74,8 @@ def run(args) -> int:
         save_tactile_map(path, tactile_map, metadata=metadata)
         payload[tactile_map.object_id] = report
         rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
-                     report["loss"], f"{100 * report['accuracy']:.0f} %"])
-    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "log loss",
+                     report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])
+    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "truth NLL", "within log loss",
                         "best within 2 mm"], rows))
     if args.json:
         write_json(args.json, payload)

@@ -7,17 +7,18 @@ from tactojax.localize import BeliefCalibration, fit_calibration
 from tactojax.localize._calibrate import BeliefRecord, predict_within
 
 
-def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12):
+def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12, appearance=0.0):
     """Beliefs whose truth is drawn from the calibrated weights themselves: P(within 2 mm) of a
     perfectly calibrated belief, every hypothesis a distinct pose."""
     touches = rng.integers(1, 7, count)
     geometry = rng.normal(0.0, 40.0, (count, hypotheses)) * touches[:, None]
-    scaled = touches[:, None] ** -exponent * temperature * geometry
+    similarity = rng.normal(0.0, 1.0, (count, hypotheses)) * touches[:, None] if appearance else np.zeros_like(geometry)
+    scaled = touches[:, None] ** -exponent * (temperature * geometry + appearance * similarity)
     weights = np.exp(scaled - scaled.max(axis=1, keepdims=True))
     weights /= weights.sum(axis=1, keepdims=True)
     truth_index = np.array([rng.choice(hypotheses, p=w) for w in weights])
     truth = np.arange(hypotheses)[None, :] == truth_index[:, None]
-    return BeliefRecord(geometry=geometry, similarity=np.zeros_like(geometry), valid=np.ones_like(truth),
+    return BeliefRecord(geometry=geometry, similarity=similarity, valid=np.ones_like(truth),
                         touches=touches, same_pose=np.broadcast_to(np.eye(hypotheses, dtype=bool),
                                                                    (count, hypotheses, hypotheses)), truth=truth)
 
@@ -35,6 +36,20 @@ def test_fit_recovers_a_known_temperature(temperature, exponent):
     for b in range(5):
         if np.sum(bins == b) >= 100:
             assert abs(probability[bins == b].mean() - happened[bins == b].mean()) < 0.06
+
+
+def test_fit_recovers_the_weight_of_the_appearance():
+    """Where the truth follows the appearance as well, the fit finds its weight relative to the
+    geometry's temperature; leaving the appearance out puts less mass on the truth."""
+    from tactojax.localize._calibrate import truth_log_loss, truth_probability
+
+    records = _synthetic_records(np.random.default_rng(4), 0.02, 0.5, appearance=1.0)
+    fitted, report = fit_calibration(records)
+    assert float(fitted.appearance) / float(fitted.temperature) == pytest.approx(1.0 / 0.02, rel=0.35)
+    assert float(fitted.temperature) == pytest.approx(0.02, rel=0.3)
+    without = BeliefCalibration(temperature=fitted.temperature, appearance=np.float32(0.0),
+                                fusion_exponent=fitted.fusion_exponent)
+    assert truth_log_loss(truth_probability(records, without)) > report["truth_loss"] + 0.1
 
 
 def test_an_overconfident_temperature_is_worse_than_the_fit():
