@@ -16,7 +16,7 @@ def add_parser(commands) -> None:
                     "fusion exponent (the appearance weight relative to the temperature by the likelihood of the "
                     "true pose, then the temperature and exponent so that its P(within 2 mm) is calibrated); the "
                     "fit is stored in the map's header, where every command that runs the belief reads it.")
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (rewritten in place)")
+    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (the fit is written into their headers; nothing else changes)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
                         help="new-grasps datasets holding each map's object (`--protocol grasps`)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=2,
@@ -47,7 +47,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder
-    from tactojax.io import DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, save_tactile_map, tactile_map_metadata
+    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, tactile_map_metadata,
+                             update_tactile_map_metadata)
     from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
     from tactojax.localize.evaluation import record_beliefs
 
@@ -71,7 +72,7 @@ def run(args) -> int:
                       episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report
-        save_tactile_map(path, tactile_map, metadata=metadata)
+        update_tactile_map_metadata(path, metadata)  # the file keeps its images and format
         payload[tactile_map.object_id] = report
         rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
                      report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])

@@ -33,6 +33,7 @@ from tactojax.io._map import save_tactile_map as save_tactile_map
 from tactojax.io._map import stored_features_encoder as stored_features_encoder
 from tactojax.io._map import tactile_map_bytes as tactile_map_bytes
 from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
+from tactojax.io._map import update_tactile_map_metadata as update_tactile_map_metadata
 from tactojax.io._presses import load_ball_presses as load_ball_presses
 from tactojax.io._shape import bundled_shape_models as bundled_shape_models
 from tactojax.io._shape import load_shape_data as load_shape_data
@@ -149,5 +150,6 @@ __all__ = [
     "TAXIM_SENSORS",
     "TaximCalibration",
     "UnsafeCheckpointError",
+    "update_tactile_map_metadata",
     "ycb_mesh_path",
 ]

@@ -238,6 +238,32 @@ def tactile_map_bytes(path) -> dict:
             "loaded_bytes": sum(int(x.nbytes) for x in jax.tree.leaves(loaded)), "fields": fields}
 
 
+def update_tactile_map_metadata(path, metadata: dict) -> Path:
+    """Replace a map file's ``metadata`` in place (atomically), leaving every array as it is:
+    its format version, its images when it keeps them, its stored features.
+
+    What ``tactojax calibrate-belief`` runs to store a fit: re-saving the loaded map would write
+    only what the commands load (no images), and convert a version-1 file.
+
+    Args:
+        path: a map written by :func:`save_tactile_map` (or a version-1 file).
+        metadata: the new JSON-serialisable ``metadata`` dict (it replaces the old one).
+    """
+    import io
+
+    path = Path(path)
+    header = tactile_map_metadata(path)
+    header["metadata"] = metadata
+    encoded = io.BytesIO()
+    np.lib.format.write_array(encoded, np.array(json.dumps(header)), allow_pickle=False)
+    with zipfile.ZipFile(path) as source, atomic_open(path, "wb") as handle:
+        with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED) as target:
+            for info in source.infolist():
+                data = encoded.getvalue() if info.filename == "header.npy" else source.read(info)
+                target.writestr(info, data, compress_type=zipfile.ZIP_DEFLATED)
+    return path
+
+
 def tactile_map_metadata(path) -> dict:
     """The header of a map file (object, pitch, sensor and its ``metadata`` dict)."""
     header, _ = _read_npz(Path(path), arrays=False)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tactojax.cli import main
-from tactojax.io import save_shape_model, save_tactile_map, tactile_map_metadata
+from tactojax.io import load_tactile_map, save_shape_model, save_tactile_map, tactile_map_metadata
 
 GRASPS = ["--protocol", "grasps", "--grasps-per-episode", "2", "--fingers", "2", "--scale", "0.25",
           "--turns-deg", "0", "--no-progress"]
@@ -27,10 +27,13 @@ def calibrated(tmp_path_factory, cylinder_map, lookup_model, tiny_encoder_path):
     return folder, map_path, model, json.loads(fits.read_text())
 
 
-def test_calibration_is_stored_with_the_map(calibrated, capsys):
+def test_calibration_is_stored_with_the_map(calibrated, cylinder_map, capsys):
     _, map_path, _, fits = calibrated
     stored = tactile_map_metadata(map_path)["metadata"]["belief_calibration"]
     assert stored == fits["cylinder"]
+    # Only the header changed: the map keeps its images (features from another encoder need them).
+    np.testing.assert_array_equal(np.asarray(load_tactile_map(map_path, images=True).images),
+                                  np.asarray(cylinder_map.images))
     # Per episode: a belief after every touch (grasps x fingers), and the second grasp's first finger alone.
     assert stored["beliefs"] == 4 * (2 * 2 + 1)
     assert stored["temperature"] > 0 and stored["fusion_exponent"] >= 0 and np.isfinite(stored["loss"])

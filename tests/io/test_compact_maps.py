@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tactojax.io import (MAP_VERSION, compact_tactile_map, load_tactile_map, save_tactile_map, tactile_map_bytes,
-                         tactile_map_metadata)
+                         tactile_map_metadata, update_tactile_map_metadata)
 from tactojax.mapping import TactileMap, pack_heightmaps, pixel_index_dtype, sample_contact_pixels
 
 HEIGHT_PX, WIDTH_PX, MM_PER_PX, POINTS = 120, 160, 0.2, 1024
@@ -152,3 +152,27 @@ def test_version_1_points_off_the_pixel_grid_are_refused(tiny_map, tmp_path):
     np.savez_compressed(path, **arrays)
     with pytest.raises(CorruptMapError, match="pixel grid"):
         load_tactile_map(path)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_metadata_update_leaves_every_array_and_the_version(tiny_map, tmp_path, version):
+    """What ``calibrate-belief`` stores: the header changes, the arrays (images included) and the
+    format version do not."""
+    tactile_map, heightmaps, masks = tiny_map
+    path = tmp_path / "map.npz"
+    if version == 1:
+        _write_version_1(path, heightmaps, masks, *(np.asarray(x) for x in (tactile_map.point_pixels, tactile_map.valid,
+                                                                            tactile_map.images)), {"seed": 3})
+    else:
+        save_tactile_map(path, tactile_map, metadata={"seed": 3})
+    with np.load(path) as before:
+        arrays = {name: before[name] for name in before.files if name != "header"}
+    fit = {"temperature": 0.1, "appearance": 5.0, "fusion_exponent": 0.5}
+    assert update_tactile_map_metadata(path, {"seed": 3, "belief_calibration": fit}) == path
+    header = tactile_map_metadata(path)
+    assert header["version"] == version and header["metadata"] == {"seed": 3, "belief_calibration": fit}
+    with np.load(path) as after:
+        assert sorted(after.files) == sorted([*arrays, "header"]) and "images" in after.files
+        for name, value in arrays.items():
+            np.testing.assert_array_equal(after[name], value)
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
