@@ -157,7 +157,7 @@ def run_active_episodes(
                     mask = jnp.asarray(valid + [False] * pad)
                     rmse, symmetric, _, _ = errors(T_true, T_estimate, jnp.stack(means + [means[0]] * pad),
                                                    jnp.stack(covariances + [covariances[0]] * pad), mask,
-                                                   view.symmetries)
+                                                   view.symmetries, view.symmetry_axis, view.symmetry_centre)
                     out.rmse[policy][episode, k], out.symmetric_rmse[policy][episode, k] = float(rmse), float(symmetric)
                     out.probability[policy][episode, k] = float(belief.probability_within())
                 else:  # nothing felt yet: no estimate

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 from flax import struct
 from jaxtyping import Array, Bool, Float, Float16, Int
 
@@ -76,6 +77,12 @@ class LocalizationMap:
     """The whole map's signed-distance surface (the belief's likelihood reads it)."""
     symmetries: jaxlie.SE3
     """(S,) object-frame transforms that map the object onto itself (identity first)."""
+    symmetry_axis: Float[Array, "3"]
+    """Unit axis of the object's continuous rotational symmetry, object frame (zeros for none):
+    ``symmetries`` samples its turns; the evaluation's symmetry-aware errors turn each copy about
+    it to the closest, exactly."""
+    symmetry_centre: Float[Array, "3"]
+    """A point on that axis, object frame, mm."""
     calibration: BeliefCalibration
     """The belief's likelihood scales for this map."""
     mm_per_px: float = struct.field(pytree_node=False)
@@ -83,7 +90,9 @@ class LocalizationMap:
 
     @staticmethod
     def from_tactile_map(tactile_map: TactileMap, *, calibration: BeliefCalibration | None = None,
-                         symmetries: jaxlie.SE3 | None = None, surface: SurfaceSettings = SurfaceSettings(),
+                         symmetries: jaxlie.SE3 | None = None,
+                         continuous_symmetry: tuple[Float[Array, "3"], Float[Array, "3"]] | None = None,
+                         surface: SurfaceSettings = SurfaceSettings(),
                          points_per_imprint: int = MAP_POINTS) -> LocalizationMap:
         """The localization view of a :class:`~tactojax.mapping.TactileMap` (builds its surface
         on the host: about 1-4 s for the catalog maps).
@@ -94,6 +103,10 @@ class LocalizationMap:
                 in the map file by ``tactojax calibrate-belief``; default: uncalibrated).
             symmetries: (S,) the object's symmetry transforms (default: the catalog's for a
                 catalog object, else none but the identity).
+            continuous_symmetry: ``(axis, centre)``, the unit axis of the object's continuous
+                rotational symmetry and a point on it (object frame, mm), whose turns
+                ``symmetries`` samples; zeros for none (default: the catalog's for a catalog
+                object, else none).
             surface: how the surface grid is built.
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
@@ -113,6 +126,7 @@ class LocalizationMap:
             points=points, normals=normals, points_valid=points_valid, centres=centres,
             surface=build_map_surface(tactile_map, surface),
             symmetries=catalog_symmetries(tactile_map.object_id) if symmetries is None else symmetries,
+            **_continuous_symmetry(tactile_map.object_id, continuous_symmetry),
             calibration=BeliefCalibration.default() if calibration is None else calibration,
             mm_per_px=float(tactile_map.mm_per_px))
         return jax.tree.map(_strong, view)
@@ -139,11 +153,12 @@ class LocalizationMap:
 
         own = len(self)
         per_imprint = self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz), surface=None,
-                                   symmetries=None, calibration=None)
+                                   symmetries=None, symmetry_axis=None, symmetry_centre=None, calibration=None)
         view = jax.tree.map(pad, per_imprint)
         identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (extra, 7))
         return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[own:].set(identity)),
-                            surface=self.surface, symmetries=self.symmetries, calibration=self.calibration)
+                            surface=self.surface, symmetries=self.symmetries, symmetry_axis=self.symmetry_axis,
+                            symmetry_centre=self.symmetry_centre, calibration=self.calibration)
 
     def imprints_near(self, T_object_sensor: jaxlie.SE3, centre: Float[Array, "3"], count: int, *,
                       max_facing_deg: float = 60.0) -> tuple[Int[Array, "count"], Bool[Array, "count"]]:
@@ -221,6 +236,20 @@ def catalog_symmetries(object_id: str) -> jaxlie.SE3:
     if object_id not in CATALOG:
         return jaxlie.SE3.identity((1,))
     return get_object(object_id).symmetry.transforms()
+
+
+def _continuous_symmetry(object_id: str, given) -> dict[str, jax.Array]:
+    """``given`` (axis, centre), else the catalog object's continuous symmetry axis and a point on
+    it (zeros outside the catalog, or for an object without one)."""
+    from tactojax.objects import CATALOG, get_object
+
+    if given is not None:
+        axis, centre = given
+    elif object_id in CATALOG:
+        axis, centre = get_object(object_id).symmetry.continuous_axis()
+    else:
+        axis, centre = np.zeros(3, np.float32), np.zeros(3, np.float32)
+    return {"symmetry_axis": jnp.asarray(axis, jnp.float32), "symmetry_centre": jnp.asarray(centre, jnp.float32)}
 
 
 def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:

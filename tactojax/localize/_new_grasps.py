@@ -31,7 +31,7 @@ from tactojax.localize._episode_beliefs import (
     fused_steps,
     sequence_touches,
 )
-from tactojax.localize._evaluate import moment_rmse
+from tactojax.localize._evaluate import closest_turn_about_axis, moment_rmse
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded
 
@@ -126,14 +126,24 @@ def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BI
     return out
 
 
-def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3):
-    """RMSE over a set of touches (T,) and its symmetry-aware value; the first touch's pose errors."""
+def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3,
+            symmetry_axis, symmetry_centre):
+    """RMSE over a set of touches (T,) and its symmetry-aware value (each symmetric copy also
+    turned to its closest about a continuous symmetry axis: :func:`closest_turn_about_axis`);
+    the first touch's pose errors."""
     per_touch_rmse = jax.vmap(moment_rmse)  # over touches, each with its own cloud
     per_touch = per_touch_rmse(mean, covariance, T_true, T_estimate)  # (T,)
     count = jnp.maximum(jnp.sum(valid), 1)
     rmse = jnp.sqrt(jnp.sum(jnp.where(valid, per_touch**2, 0.0)) / count)
-    per_symmetry = jax.vmap(lambda S: per_touch_rmse(mean, covariance, T_true, S @ T_estimate))(symmetries)  # (S, T)
-    symmetric = jnp.sqrt(jnp.min(jnp.sum(jnp.where(valid, per_symmetry**2, 0.0), axis=1)) / count)
+
+    def copy_error(S):  # the copy S, and the copy turned to its closest about the axis
+        copy = S @ T_estimate
+        turn = closest_turn_about_axis(mean, covariance, valid, T_true, copy, symmetry_axis, symmetry_centre)
+        squares = [jnp.sum(jnp.where(valid, per_touch_rmse(mean, covariance, T_true, T) ** 2, 0.0))
+                   for T in (copy, turn @ copy)]
+        return jnp.minimum(*squares)
+
+    symmetric = jnp.sqrt(jnp.min(jax.vmap(copy_error)(symmetries)) / count)
     first_true, first_estimate = (jax.tree.map(lambda x: x[0], T) for T in (T_true, T_estimate))
     rotation = jnp.rad2deg(jnp.linalg.norm((first_true.inverse() @ first_estimate).rotation().log()))
     translation = jnp.linalg.norm(first_true.translation() - first_estimate.translation())
@@ -152,7 +162,7 @@ def _baseline_touches(view: LocalizationMap, touches: TestEpisodes, method, poin
                                      points_per_touch=points_per_touch).T_object_sensor
         one_touch = lambda x: x[None]  # noqa: E731
         errors = _errors(jax.tree.map(one_touch, T), jax.tree.map(one_touch, estimate), m[None], c[None],
-                         jnp.ones(1, bool), view.symmetries)
+                         jnp.ones(1, bool), view.symmetries, view.symmetry_axis, view.symmetry_centre)
         nan = jnp.float32(jnp.nan)
         return (*errors, nan, nan, jnp.bool_(False))
 
@@ -178,7 +188,8 @@ def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: Po
             # The first touch the belief holds leads: its pose errors are reported.
             order = jnp.argsort(~valid, stable=True)
             T_true_, mean_, covariance_, valid_ = jax.tree.map(lambda x: x[order], (T_true, mean, covariance, valid))
-            errors = _errors(T_true_, belief.sensor_pose(T_true_), mean_, covariance_, valid_, view.symmetries)
+            errors = _errors(T_true_, belief.sensor_pose(T_true_), mean_, covariance_, valid_, view.symmetries,
+                             view.symmetry_axis, view.symmetry_centre)
             return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
 
         return jax.vmap(observe)(beliefs, holds)

@@ -61,6 +61,14 @@ class ObjectSymmetry:
             jaxlie.SO3.from_matrix(jnp.asarray(matrices, jnp.float32)), jnp.asarray(translations, jnp.float32))
 
 
+    def continuous_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3,) the unit axis of a continuous rotational symmetry and (3,) a point on it (object
+        frame, mm); zeros for an object without one (none, or n-fold)."""
+        if self.axis is None or self.fold > 0:
+            return np.zeros(3, np.float32), np.zeros(3, np.float32)
+        return _AXES[self.axis].astype(np.float32), np.asarray(self.centre, np.float32)
+
+
 def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotation matrix (Rodrigues)."""
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
