@@ -249,6 +249,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
                             progress=False)
         episodes, _ = load_test_episodes(dataset, name, model, encoder, progress=False)
         view = LocalizationMap.from_tactile_map(tactile_map)
+        symmetry = (view.symmetries, view.symmetry_axis, view.symmetry_centre)
         count = int(episodes.openings.shape[0])
         error, within = np.full((count, args.grasps), np.inf), np.zeros((count, args.grasps))
         snapshots = [{} for _ in range(count)]  # per episode: {grasps: (positions, probabilities)}
@@ -264,7 +265,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
                 # relate the touches reaches the belief.
                 belief = localize(view, touches, jax.tree.map(lambda x: x[g], episode.T_object_sensor),
                                   belief=belief)
-                error[e, g], within[e, g], positions = jax.device_get(_score_belief(belief, episode, g))
+                error[e, g], within[e, g], positions = jax.device_get(_score_belief(symmetry, belief, episode, g))
                 if g + 1 in shown:
                     snapshots[e][g + 1] = (positions, np.asarray(belief.probabilities))
         # The figure's episode: the typical one (the median error after the last grasp).
@@ -310,9 +311,10 @@ def _active(args, spec, model, encoder, maps, out: Path) -> dict:
 
 
 @jax.jit
-def _score_belief(belief, episode, g):
+def _score_belief(symmetry, belief, episode, g):
     """After grasp ``g`` of an episode: the error over the fused touches (the paper's RMSE, up to
-    the object's symmetry), the belief's P(within 2 mm) and its hypotheses' first-sensor positions."""
+    the object's symmetry: ``(symmetries, axis, centre)`` of its map), the belief's P(within 2 mm)
+    and its hypotheses' first-sensor positions."""
     import jax.numpy as jnp
 
     from tactojax.localize._new_grasps import _errors
@@ -321,5 +323,5 @@ def _score_belief(belief, episode, g):
     T_true = jax.tree.map(lambda x: x[:, :fingers].reshape(-1, *x.shape[2:]), episode.T_object_sensor)
     fused = (jnp.arange(grasps)[:, None] <= g).repeat(fingers, axis=1).reshape(-1)
     _, symmetric, _, _ = _errors(T_true, belief.sensor_pose(T_true), episode.cloud_mean[:, :fingers].reshape(-1, 3),
-                                 episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), fused, belief.symmetries)
+                                 episode.cloud_covariance[:, :fingers].reshape(-1, 3, 3), fused, *symmetry)
     return symmetric, belief.probability_within(2.0), belief.T_object_reference.translation()
