@@ -114,6 +114,27 @@ def closest_turn_about_axis(
     return jaxlie.SE3.from_rotation_and_translation(rotation, centre - rotation @ centre)
 
 
+def closest_copy_square(
+    mean: Float[Array, "T 3"], covariance: Float[Array, "T 3 3"], valid: Bool[Array, "T"], T_true: jaxlie.SE3,
+    T_estimate: jaxlie.SE3, symmetries: jaxlie.SE3, symmetry_axis: Float[Array, "3"],
+    symmetry_centre: Float[Array, "3"]
+) -> Float[Array, ""]:
+    """The least summed squared RMSE (mm^2) of the valid clouds (T,) between their true poses and
+    a symmetric copy of their estimated ones: over every copy ``S_s T_estimate``, each also turned
+    to its closest about the continuous symmetry axis (:func:`closest_turn_about_axis`; a zero
+    axis turns nothing)."""
+    per_touch = jax.vmap(moment_rmse)  # over clouds, each with its own moments
+
+    def copy_square(S):
+        copy = S @ T_estimate
+        turn = closest_turn_about_axis(mean, covariance, valid, T_true, copy, symmetry_axis, symmetry_centre)
+        squares = [jnp.sum(jnp.where(valid, per_touch(mean, covariance, T_true, T) ** 2, 0.0))
+                   for T in (copy, turn @ copy)]
+        return jnp.minimum(*squares)
+
+    return jnp.min(jax.vmap(copy_square)(symmetries))
+
+
 def pose_errors(
     points: Float[Array, "P 3"],
     valid: Bool[Array, "P"],
@@ -146,17 +167,12 @@ def pose_errors(
     symmetric = rmse
     if symmetries is not None:
         mean, covariance = cloud_moments(points, valid)
-        copies = symmetries @ T_estimate
-        if symmetry_axis is not None:
-            one = (mean[None], covariance[None], jnp.ones(1, bool))
-            turns = jax.vmap(lambda T: closest_turn_about_axis(
-                *one, jax.tree.map(lambda x: x[None], T_true), jax.tree.map(lambda x: x[None], T),
-                symmetry_axis, symmetry_centre))(copies)
-            per_symmetry = jnp.minimum(moment_rmse(mean, covariance, T_true, copies),
-                                       moment_rmse(mean, covariance, T_true, turns @ copies))
-        else:
-            per_symmetry = moment_rmse(mean, covariance, T_true, copies)
-        symmetric = jnp.minimum(rmse, jnp.min(per_symmetry))
+        one = lambda T: jax.tree.map(lambda x: x[None], T)  # noqa: E731  (a set of one cloud)
+        no_axis = jnp.zeros(3)
+        square = closest_copy_square(mean[None], covariance[None], jnp.ones(1, bool), one(T_true), one(T_estimate),
+                                     symmetries, no_axis if symmetry_axis is None else symmetry_axis,
+                                     no_axis if symmetry_centre is None else symmetry_centre)
+        symmetric = jnp.minimum(rmse, jnp.sqrt(square))
     return {"rmse": rmse, "translation": translation, "rotation": rotation, "symmetric_rmse": symmetric}
 
 

@@ -31,7 +31,7 @@ from tactojax.localize._episode_beliefs import (
     fused_steps,
     sequence_touches,
 )
-from tactojax.localize._evaluate import closest_turn_about_axis, moment_rmse
+from tactojax.localize._evaluate import closest_copy_square, moment_rmse
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded
 
@@ -128,22 +128,13 @@ def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BI
 
 def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3,
             symmetry_axis, symmetry_centre):
-    """RMSE over a set of touches (T,) and its symmetry-aware value (each symmetric copy also
-    turned to its closest about a continuous symmetry axis: :func:`closest_turn_about_axis`);
+    """RMSE over a set of touches (T,) and its symmetry-aware value (:func:`closest_copy_square`);
     the first touch's pose errors."""
-    per_touch_rmse = jax.vmap(moment_rmse)  # over touches, each with its own cloud
-    per_touch = per_touch_rmse(mean, covariance, T_true, T_estimate)  # (T,)
+    per_touch = jax.vmap(moment_rmse)(mean, covariance, T_true, T_estimate)  # (T,), each touch its own cloud
     count = jnp.maximum(jnp.sum(valid), 1)
     rmse = jnp.sqrt(jnp.sum(jnp.where(valid, per_touch**2, 0.0)) / count)
-
-    def copy_error(S):  # the copy S, and the copy turned to its closest about the axis
-        copy = S @ T_estimate
-        turn = closest_turn_about_axis(mean, covariance, valid, T_true, copy, symmetry_axis, symmetry_centre)
-        squares = [jnp.sum(jnp.where(valid, per_touch_rmse(mean, covariance, T_true, T) ** 2, 0.0))
-                   for T in (copy, turn @ copy)]
-        return jnp.minimum(*squares)
-
-    symmetric = jnp.sqrt(jnp.min(jax.vmap(copy_error)(symmetries)) / count)
+    symmetric = jnp.sqrt(closest_copy_square(mean, covariance, valid, T_true, T_estimate, symmetries, symmetry_axis,
+                                             symmetry_centre) / count)
     first_true, first_estimate = (jax.tree.map(lambda x: x[0], T) for T in (T_true, T_estimate))
     rotation = jnp.rad2deg(jnp.linalg.norm((first_true.inverse() @ first_estimate).rotation().log()))
     translation = jnp.linalg.norm(first_true.translation() - first_estimate.translation())

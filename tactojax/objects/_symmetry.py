@@ -60,7 +60,6 @@ class ObjectSymmetry:
         return jaxlie.SE3.from_rotation_and_translation(
             jaxlie.SO3.from_matrix(jnp.asarray(matrices, jnp.float32)), jnp.asarray(translations, jnp.float32))
 
-
     def continuous_axis(self) -> tuple[np.ndarray, np.ndarray]:
         """(3,) the unit axis of a continuous rotational symmetry and (3,) a point on it (object
         frame, mm); zeros for an object without one (none, or n-fold)."""
