@@ -46,8 +46,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 
 def run(args) -> int:
-    from tactojax.cli._maps import maps_and_query_encoder
-    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, tactile_map_metadata,
+    from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
+    from tactojax.io import (expand_catalogs, resolve_shape_model, tactile_map_metadata,
                              update_tactile_map_metadata)
     from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
     from tactojax.localize.evaluation import record_beliefs
@@ -68,7 +68,7 @@ def run(args) -> int:
             records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
             calibration, report = fit_calibration(records)
             view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
-        report.update(encoder=args.encoder or DEFAULT_ENCODER, fingers=args.fingers,
+        report.update(encoder=maps_encoder_name([path], args.encoder), fingers=args.fingers,
                       episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report

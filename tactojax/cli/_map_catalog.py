@@ -66,13 +66,13 @@ def expand_objects(names: list[str]) -> list[str]:
 def run(args) -> int:
     from tqdm.auto import tqdm
 
-    from tactojax.io import DEFAULT_ENCODER, read_catalog, resolve_encoder, resolve_shape_model, write_catalog
+    from tactojax.io import DEFAULT_ENCODER, encoder_label, read_catalog, resolve_encoder, resolve_shape_model, write_catalog
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     objects = expand_objects(args.objects)
     settings = {"grid_mm": args.grid_mm, "max_grasps": args.max_grasps, "scale": args.scale, "model": args.model,
-                "encoder": args.encoder or DEFAULT_ENCODER, "points": args.points, "seed": args.seed}
+                "encoder": encoder_label(args.encoder or DEFAULT_ENCODER), "points": args.points, "seed": args.seed}
     index = read_catalog(out)
     if index["objects"] and index["settings"] != settings:
         raise ValueError(f"{out} was built with other settings ({index['settings']}); use another --out to "
@@ -87,7 +87,7 @@ def run(args) -> int:
         bar.set_postfix_str(name)
         start = time.perf_counter()
         try:
-            entry = _build_object(name, out, model, encoder, args)
+            entry = _build_object(name, out, model, encoder, settings["encoder"], args)
         except (ValueError, FileNotFoundError, ImportError, RuntimeError) as error:
             entry = {"status": "failed", "error": str(error)}
             print(f"{name}: not mapped: {error}", file=sys.stderr)
@@ -98,7 +98,7 @@ def run(args) -> int:
     return 0 if any(e["status"] == "built" for e in index["objects"].values()) else 1
 
 
-def _build_object(name: str, out: Path, model, encoder, args) -> dict:
+def _build_object(name: str, out: Path, model, encoder, encoder_name: str, args) -> dict:
     """Simulate, map and save one object; its dataset is removed afterwards (unless --keep-data)."""
     import dataclasses
 
@@ -135,7 +135,7 @@ def _build_object(name: str, out: Path, model, encoder, args) -> dict:
         tactile_map = tactile_map.replace(images=None)
     path = save_tactile_map(out / f"{slug}.npz", tactile_map, metadata={
         "data": f"{name} (mapping protocol, grid {protocol.grid_mm:g} mm)", "model": args.model,
-        "encoder": args.encoder, "seed": args.seed})
+        "features_encoder": encoder_name, "seed": args.seed})
     if not args.keep_data:
         shutil.rmtree(data)
     return {"status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,

@@ -11,36 +11,60 @@ def add_encoder_argument(parser) -> None:
                              f"stored in the maps, else {DEFAULT_ENCODER}")
 
 
+def maps_encoder_name(paths, encoder_name: str | None) -> str:
+    """The encoder a command uses with the maps at ``paths``: ``encoder_name`` when given, else
+    the one the maps record for their stored features (``features_encoder``), else the default.
+
+    Raises:
+        ValueError: no encoder given and the maps record different ones.
+    """
+    from tactojax.io import encoder_label, stored_features_encoder, tactile_map_metadata
+
+    if encoder_name is not None:
+        return encoder_label(encoder_name)
+    recorded = {stored_features_encoder(tactile_map_metadata(path)) for path in paths} - {None}
+    if len(recorded) > 1:
+        raise ValueError(f"the maps store features of different encoders ({', '.join(sorted(recorded))}): "
+                         "pass one with --encoder")
+    return recorded.pop() if recorded else DEFAULT_ENCODER
+
+
 def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool = True):
-    """The maps at ``paths`` with features from ``encoder_name`` (or those they store).
+    """The maps at ``paths`` with the retrieval features of one encoder (:func:`maps_encoder_name`):
+    those a map stores when it recorded that encoder (or recorded none, as older maps, and the
+    encoder is the default), else its images encoded now (a clear error for a map stored
+    without them).
 
     Returns:
-        (maps, encoder): the encoder actually used (None when every map kept its stored features).
+        (maps, name): the maps, and the encoder's name (``encoder_label``).
     """
     from tactojax.features import encode_images
-    from tactojax.io import load_tactile_map, resolve_encoder
+    from tactojax.io import load_tactile_map, resolve_encoder, stored_features_encoder, tactile_map_metadata
 
-    maps = [load_tactile_map(path) for path in paths]
+    name = maps_encoder_name(paths, encoder_name)
+    maps, encoder = [], None
+    for path in paths:
+        tactile_map = load_tactile_map(path)
+        recorded = stored_features_encoder(tactile_map_metadata(path)) or DEFAULT_ENCODER
+        if tactile_map.features.shape[1] == 0 or recorded != name:
+            encoder = encoder or resolve_encoder(name)
+            tactile_map = load_tactile_map(path, images=True)  # encoding needs the images
+            tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(),
+                                                                  progress=progress))
+        maps.append(tactile_map)
     names = [m.object_id for m in maps]
     if len(set(names)) != len(names):
         raise ValueError(f"two maps of the same object: {names}")
-    stored = all(m.features.shape[1] > 0 for m in maps) and len({m.features.shape[1] for m in maps}) == 1
-    if encoder_name is None and stored:
-        return maps, None
-    encoder = resolve_encoder(encoder_name or DEFAULT_ENCODER)
-    maps = [load_tactile_map(path, images=True) for path in paths]  # encoding needs the images
-    maps = [m.with_features(encode_images(encoder, m.stored_images(), progress=progress)) for m in maps]
-    return maps, encoder
+    return maps, name
 
 
 def maps_and_query_encoder(paths, encoder_name: str | None, *, progress: bool = True):
-    """The maps with features, and the encoder for new touches (theirs, or the default when the
-    maps keep their stored features); raises a clear error when its features do not fit the maps."""
+    """The maps with features (:func:`load_maps_with_features`), and the encoder of those
+    features for new touches; raises a clear error when its features do not fit the maps."""
     from tactojax.io import resolve_encoder
 
-    maps, encoder = load_maps_with_features(paths, encoder_name, progress=progress)
-    if encoder is None:
-        encoder = resolve_encoder(encoder_name or DEFAULT_ENCODER)
+    maps, name = load_maps_with_features(paths, encoder_name, progress=progress)
+    encoder = resolve_encoder(name)
     if encoder.feature_dim != maps[0].features.shape[1]:
         raise ValueError(f"the maps store {maps[0].features.shape[1]}-long features but the encoder gives "
                          f"{encoder.feature_dim}: pass the encoder that built them with --encoder")
@@ -57,17 +81,18 @@ def stored_calibration(path, encoder_name: str | None):
     (uncalibrated: said on stderr) when it has none or it was fit with another encoder."""
     import sys
 
-    from tactojax.io import DEFAULT_ENCODER, tactile_map_metadata
+    from tactojax.io import encoder_label, tactile_map_metadata
     from tactojax.localize import calibration_from_json
 
+    encoder_name = maps_encoder_name([path], encoder_name)
     fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
     if fit is None:
         print(f"note: {path} holds no belief calibration (run `tactojax calibrate-belief`); its P(within 2 mm) "
               "is not calibrated", file=sys.stderr)
         return None
-    if fit.get("encoder") != (encoder_name or DEFAULT_ENCODER):
+    if encoder_label(fit.get("encoder", DEFAULT_ENCODER)) != encoder_name:
         print(f"note: {path}'s belief calibration was fit with the encoder {fit.get('encoder')!r}, not "
-              f"{encoder_name or DEFAULT_ENCODER!r}: not used", file=sys.stderr)
+              f"{encoder_name!r}: not used", file=sys.stderr)
         return None
     return calibration_from_json(fit)
 

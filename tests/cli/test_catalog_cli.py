@@ -3,8 +3,12 @@ the commands that take maps take it."""
 
 import json
 
+import pytest
+
 from tactojax.cli import main
-from tactojax.io import catalog_maps, load_tactile_map, read_catalog, save_shape_model
+from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
+from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, read_catalog, save_shape_model,
+                         save_tactile_map, tactile_map_metadata)
 
 
 def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_encoder_path, tmp_path, capsys):
@@ -41,6 +45,16 @@ def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_en
     # The catalog stands for its maps: identification among them (leave-one-out retrieval).
     assert main(["identify", str(out), "--json", str(tmp_path / "id.json"), "--figure", str(tmp_path / "id.png")]) == 0
     assert json.loads((tmp_path / "id.json").read_text())["objects"] == ["cylinder", "gum_box"]
+
+    # The maps record their encoder, and the commands encode new touches with it by default.
+    assert tactile_map_metadata(out / "cylinder.npz")["metadata"]["features_encoder"] == encoder_label(tiny_encoder_path)
+    assert maps_encoder_name(catalog_maps(out), None) == encoder_label(tiny_encoder_path)
+    _, encoder = maps_and_query_encoder(catalog_maps(out), None, progress=False)
+    assert encoder.feature_dim == cylinder.features.shape[1]
+    other = tmp_path / "other.npz"  # a map whose features say they come from the bundled encoder
+    save_tactile_map(other, cylinder.replace(object_id="other"), metadata={"features_encoder": "bundled:features-tactile"})
+    with pytest.raises(ValueError, match="features of different encoders"):
+        maps_encoder_name([out / "cylinder.npz", other], None)
 
     # Other settings are another catalog.
     assert main(["map-catalog", "cylinder", *common[:-1], "--grid-mm", "30", "--no-progress"]) == 2
