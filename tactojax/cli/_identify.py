@@ -16,7 +16,8 @@ def add_parser(commands) -> None:
     parser.add_argument("maps", nargs="+",
                         help="tactile maps (.npz) of different objects, or map catalogs (`tactojax map-catalog`)")
     add_encoder_argument(parser)
-    parser.add_argument("--figure", metavar="PNG", default="identification.png", help="confusion-matrix figure")
+    parser.add_argument("--figure", metavar="PNG", default="identification.png",
+                        help="confusion-matrix figure (with --test: after the last grasp)")
     parser.add_argument("--json", metavar="PATH", help="write the metrics as JSON")
     new = parser.add_argument_group("new grasps (instead of leave-one-out)")
     new.add_argument("--test", nargs="+", metavar="DIR",
@@ -63,13 +64,14 @@ def run_new_grasps(args) -> int:
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import calibration_to_json
     from tactojax.localize.evaluation import identify_episodes
+    from tactojax.viz import confusion_figure, save_png
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     names = [m.object_id for m in maps]
     model = resolve_shape_model(args.model)
     catalog, _ = localization_views(args.maps, maps, args.encoder, shared=True)
     calibration = catalog[0].calibration  # the maps' median: one calibration, so that evidences compare
-    correct, probability = {}, {}  # object -> (E, G) arrays
+    correct, probability, identified = {}, {}, {}  # object -> (E, G) arrays
     for directory in args.test:
         for name in sorted(set(read_test_grasps(directory, ["opening_mm"])["object_id"].tolist())):
             if name not in names:
@@ -78,7 +80,8 @@ def run_new_grasps(args) -> int:
             if args.fingers > recorded:
                 raise ValueError(f"--fingers {args.fingers}: {directory} records {recorded} finger per grasp")
             p = identify_episodes(catalog, episodes, fingers=args.fingers, calibration=calibration, progress=True)
-            correct[name] = np.argmax(p, axis=-1) == names.index(name)
+            identified[name] = np.argmax(p, axis=-1)
+            correct[name] = identified[name] == names.index(name)
             probability[name] = p[..., names.index(name)]
     grasps = min(c.shape[1] for c in correct.values())
     rows, results = [], []
@@ -92,7 +95,12 @@ def run_new_grasps(args) -> int:
                      *(f"{100 * np.mean(c[:, k]):.0f} %" for c in correct.values())])
     print(f"identification among {len(names)} objects, P(object) from every map's pose belief")
     print(format_table(["grasps", "fingers", "episodes", "top-1", "mean P(true object)", *correct], rows))
+    confusion = np.zeros((len(names), len(names)), int)  # [true, identified] after the last grasp
+    for name, choice in identified.items():
+        np.add.at(confusion[names.index(name)], choice[:, grasps - 1], 1)
+    save_png(confusion_figure(confusion, names), args.figure)
+    print(f"figure: {args.figure} (confusion after {grasps} grasps)")
     if args.json:
         write_json(args.json, {"objects": names, "test": args.test, "calibration": calibration_to_json(calibration),
-                               "results": results})
+                               "results": results, "confusion": {"grasps": grasps, "true_by_identified": confusion.tolist()}})
     return 0

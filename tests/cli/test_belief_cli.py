@@ -77,8 +77,9 @@ def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny
     assert main(["simulate", "gum_box", "--out", str(gum_box_test), *GRASPS, "--episodes", "2", "--seed", "5"]) == 0
     report = tmp_path / "id.json"
     assert main(["identify", map_path, gum_box, "--test", str(folder / "test"), str(gum_box_test), "--model", model,
-                 "--encoder", str(tiny_encoder_path), "--json", str(report)]) == 0
+                 "--encoder", str(tiny_encoder_path), "--json", str(report), "--figure", str(tmp_path / "id.png")]) == 0
     assert "P(object) from every map's pose belief" in capsys.readouterr().out
+    assert (tmp_path / "id.png").stat().st_size > 0
     result = json.loads(report.read_text())
     assert result["objects"] == ["cylinder", "gum_box"]
     # The shared calibration: the median of the maps' own (only the cylinder has one).
@@ -88,3 +89,7 @@ def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny
     for row in result["results"]:
         assert 0.0 <= row["top1"] <= 1.0 and 0.0 <= row["mean_probability_of_truth"] <= 1.0
         assert set(row["per_object_top1"]) == {"cylinder", "gum_box"}
+    # The confusion after the last grasp: one row per true object, its diagonal the top-1 hits.
+    confusion = np.array(result["confusion"]["true_by_identified"])
+    assert result["confusion"]["grasps"] == 2 and confusion.sum() == 5
+    assert np.trace(confusion) / confusion.sum() == pytest.approx(result["results"][-1]["top1"])
