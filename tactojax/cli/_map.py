@@ -18,6 +18,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--out", required=True, help="tactile map to write (.npz)")
     parser.add_argument("--object", help="which object, when the dataset holds several")
     parser.add_argument("--points", type=int, default=1024, help="contact points kept per imprint")
+    parser.add_argument("--encoder", default=None,
+                        help="encoder of the retrieval features stored with the map (bundled:NAME or a checkpoint "
+                             "path; default: the bundled one); the commands that read the map then encode new "
+                             "touches with it")
     parser.add_argument("--kinematic-noise", default="none", metavar="LEVEL",
                         help="perturb the recorded gripper poses and openings: none, low, "
                              "realistic or high (see tactojax.mapping.NOISE_LEVELS)")
@@ -35,7 +39,8 @@ def run(args) -> int:
     import jax
 
     from tactojax.features import encode_images
-    from tactojax.io import DEFAULT_ENCODER, export_ply, read_grasps, resolve_encoder, resolve_shape_model, save_tactile_map
+    from tactojax.io import (DEFAULT_ENCODER, encoder_label, export_ply, read_grasps, resolve_encoder, resolve_shape_model,
+                             save_tactile_map)
     from tactojax.mapping import NOISE_LEVELS, build_tactile_map, perturb_kinematics
 
     if args.kinematic_noise not in NOISE_LEVELS:
@@ -57,12 +62,13 @@ def run(args) -> int:
                                     T_world_object=grasps["T_world_object"], points_per_imprint=args.points,
                                     key=sample_key, progress=not args.no_progress)
     # The retrieval features, once, from the images (a compact map keeps no images).
-    features = encode_images(resolve_encoder(DEFAULT_ENCODER), tactile_map.stored_images(), progress=not args.no_progress)
+    encoder_name = encoder_label(args.encoder or DEFAULT_ENCODER)
+    features = encode_images(resolve_encoder(encoder_name), tactile_map.stored_images(), progress=not args.no_progress)
     tactile_map = tactile_map.with_features(features)
     if not args.keep_images:
         tactile_map = tactile_map.replace(images=None)
     metadata = {"data": args.data, "model": args.model, "kinematic_noise": args.kinematic_noise,
-                "seed": args.seed, "features_encoder": DEFAULT_ENCODER}
+                "seed": args.seed, "features_encoder": encoder_name}
     save_tactile_map(args.out, tactile_map, metadata=metadata)
     rows = [["object", tactile_map.object_id], ["imprints", len(tactile_map)],
             ["with contact", int(tactile_map.imprint_valid.sum())],

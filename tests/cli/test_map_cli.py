@@ -5,18 +5,23 @@ import json
 import trimesh
 
 from tactojax.cli import main
-from tactojax.io import load_tactile_map, save_shape_model, tactile_map_metadata
+from tactojax.io import encoder_label, load_tactile_map, resolve_encoder, save_shape_model, tactile_map_metadata
 
 
-def test_map_fit_and_show(mapping_dataset, lookup_model, tmp_path, capsys):
+def test_map_fit_and_show(mapping_dataset, lookup_model, tiny_encoder_path, tmp_path, capsys):
     model_path = save_shape_model(tmp_path / "lookup.msgpack", lookup_model)
     map_path, ply, figure, report = (tmp_path / "map.npz", tmp_path / "map.ply", tmp_path / "map.png",
                                      tmp_path / "fit.json")
     assert main(["map", str(mapping_dataset), "--model", str(model_path), "--out", str(map_path),
-                 "--points", "256", "--ply", str(ply), "--voxel-mm", "1.0", "--no-progress"]) == 0
+                 "--points", "256", "--ply", str(ply), "--voxel-mm", "1.0", "--encoder", str(tiny_encoder_path),
+                 "--no-progress"]) == 0
     tactile_map = load_tactile_map(map_path)
     assert tactile_map.object_id == "cylinder" and tactile_map.points.shape[1] == 256
-    assert tactile_map_metadata(map_path)["metadata"]["model"] == str(model_path)
+    metadata = tactile_map_metadata(map_path)["metadata"]
+    assert metadata["model"] == str(model_path)
+    # The features are the given encoder's, and the map says so (the commands encode new touches with it).
+    assert metadata["features_encoder"] == encoder_label(tiny_encoder_path)
+    assert tactile_map.features.shape[1] == resolve_encoder(tiny_encoder_path).feature_dim
     assert len(trimesh.load(ply).vertices) > 100
     printed = capsys.readouterr().out
     assert "distance to true surface" in printed
