@@ -238,8 +238,8 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
                               turns_deg=(0.0, 180.0))
     shown = sorted({1, args.grasps})
     print(f"\n5/6 the pose belief on new grasps: {args.episodes} episodes of {args.grasps} grasps per object, off "
-          "the mapping grid, both fingers; each grasp fused by the kinematics (uncalibrated: `tactojax "
-          "calibrate-belief` fits its scales on grasps of the object's own)")
+          "the mapping grid, both fingers; each grasp fused by the kinematics (the default scales, the catalog objects' median "
+          "fit: `tactojax calibrate-belief` fits them on grasps of the object's own)")
     rows, payload, examples, curves = [], {}, {}, {}
     for index, tactile_map in enumerate(maps):
         name = tactile_map.object_id
@@ -304,7 +304,7 @@ def _active(args, spec, model, encoder, maps, out: Path) -> dict:
     chosen = next((m for m in maps if m.object_id == args.active_object), maps[0])
     print(f"\n6/6 active touch on the simulated robot cell: {chosen.object_id}, both fingers; after a first grasp the "
           f"live localizer chooses each grasp among {args.active_candidates} proposals by expected gain in P(within "
-          f"2 mm), until P >= 0.95 or {args.active_grasps} grasps (uncalibrated)")
+          f"2 mm), until P >= 0.95 or {args.active_grasps} grasps (the default scales)")
     return run_simulated_active(spec, get_object(chosen.object_id), [chosen], model, encoder,
                                 max_grasps=args.active_grasps, candidates=args.active_candidates, seed=args.seed,
                                 figure=out / "demo_active.png")

@@ -187,7 +187,7 @@ def _run_belief(args, map_paths, maps, image_paths, openings, poses, observed, s
         position, angles = position_and_angles(_se3(summaries[i]["T_world_object_wxyz_xyz"]))
         rows.append([names[i], float(probabilities[i]), summaries[i]["probability_within_2mm"], position, angles])
     print(f"pose belief over {len(touches)} touch{'es' * (len(touches) > 1)} of {len(image_paths)} grasp"
-          f"{'s' * (len(image_paths) > 1)}{'' if calibrated else ' (uncalibrated: run tactojax calibrate-belief)'}")
+          f"{'s' * (len(image_paths) > 1)}{'' if calibrated else ' (default scales: tactojax calibrate-belief fits the map its own)'}")
     print(format_table(["object", "P(object)", "P(within 2 mm)", f"object position in {frame} (mm)",
                         "roll, pitch, yaw (deg)"], rows))
     if not probabilities.any():

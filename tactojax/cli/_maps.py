@@ -87,8 +87,9 @@ def stored_calibration(path, encoder_name: str | None):
     encoder_name = maps_encoder_name([path], encoder_name)
     fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
     if fit is None:
-        print(f"note: {path} holds no belief calibration (run `tactojax calibrate-belief`); its P(within 2 mm) "
-              "is not calibrated", file=sys.stderr)
+        print(f"note: {path} holds no belief calibration (run `tactojax calibrate-belief`): the belief runs with "
+              "the default scales (the catalog objects' median fit), its P(within 2 mm) not fit to this object",
+              file=sys.stderr)
         return None
     if encoder_label(fit.get("encoder", DEFAULT_ENCODER)) != encoder_name:
         print(f"note: {path}'s belief calibration was fit with the encoder {fit.get('encoder')!r}, not "

@@ -16,7 +16,8 @@ with tactile cameras and a pose feed (the simulated cell's or a real one's):
 
 First grasps that miss are tried in turn and not charged (the object's pose is not known yet:
 nothing is chosen), as ``tactojax eval-active`` does; a chosen grasp that misses or shows no
-contact is spent. Every program compiles at the first choice (the proposal and the ranking,
+contact is spent, and every map's belief learns from it where the object is not
+(:meth:`~tactojax.localize.Localizer.observe_failed_grasp`). Every program compiles at the first choice (the proposal and the ranking,
 once per map, settings and candidate count) or when the localizer is built: the later grasps
 of an episode, and later episodes, compile nothing.
 """
@@ -39,7 +40,7 @@ from tactojax.hardware._recorder import MAX_SKEW_S, Recorder, capture_touch, fra
 from tactojax.hardware._robot import APPROACH_MM, Robot, execute_grasp
 from tactojax.hardware._sync import SynchronisedTouch
 from tactojax.localize import LiveEstimate, Localizer, PoseBelief
-from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps, should_stop
+from tactojax.localize.active import ActiveSettings, next_grasp, propose_grasps, should_stop
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,6 @@ def active_episode(
         raise ValueError(f"the localizer's beliefs hold {localizer.settings.max_touches} touches, fewer than "
                          f"{fingers} fingers x {max_grasps} grasps: build it with BeliefSettings(max_touches=...)")
     first_grasps = jaxlie.SE3(np.asarray(first_grasps.wxyz_xyz, np.float32).reshape(-1, 7))
-    grids = {}
 
     def hold(opening_mm: float) -> tuple[SynchronisedTouch, np.ndarray | None]:
         touch = capture_touch(camera, read_opening, poses, after_s=clock() + settle_s, max_skew_s=max_skew_s,
@@ -144,9 +144,8 @@ def active_episode(
         else:
             chosen, start = "active", time.perf_counter()
             m = _chosen_map(localizer, estimate)
-            if m not in grids:
-                grids[m] = map_marching_grid(localizer.views[m])
-            view, grid, belief = localizer.views[m], grids[m], localizer.beliefs[m]
+            localizer.prepare_active(settings)  # the grids, and the program a failed grasp runs: compiled now
+            view, grid, belief = localizer.views[m], localizer.marching_grids()[m], localizer.beliefs[m]
             proposals, _ = propose_grasps(jax.random.fold_in(key, charged), view, grid, belief, candidates, settings)
             ranking = next_grasp(view, grid, belief, proposals, settings)
             best = int(ranking.order[0])
@@ -159,6 +158,8 @@ def active_episode(
             held = jaxlie.SE3(np.asarray(touch.T_world_gripper.wxyz_xyz, np.float32))
             estimate = localizer.fuse(touch.image, touch.opening_mm, touch.T_world_gripper, second)
         fused = localizer.grasps > before
+        if chosen == "active" and not fused:  # the chosen grasp failed: the belief learns where the object is not
+            localizer.observe_failed_grasp(T_world_gripper, settings)
         if fused and recorder is not None:
             recorder.write(touch, object_id=object_id)
             if second is not None:  # the opposite jaw's frame, with the same opening and gripper pose

@@ -72,6 +72,10 @@ class ActiveSettings:
     """Proposed grasps: draws per kept candidate (those predicted to miss are dropped first)."""
     stop_probability: float = 0.95
     """The stopping rule: stop when the belief's P(within 2 mm) reaches this."""
+    predicted_close_misses: float = 0.05
+    """P(a grasp misses or collides | the map predicts it closes at the true pose): the
+    prediction's own error rate, which bounds how strongly a failed grasp rules a pose out
+    (:func:`observe_failed_grasp`)."""
 
 
 @struct.dataclass
@@ -170,6 +174,38 @@ def grasp_gain(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
     gain = jnp.sum(weights * value) - _objective(weights, distance, mode, settings)
     closes = jnp.sum(jnp.where(predictions.valid, weights, 0.0))
     return gain, closes, jnp.sum(predictions.mask[0]).astype(jnp.float32)
+
+
+@functools.partial(jax.jit, static_argnames=("settings",))
+def observe_failed_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_world_gripper: jaxlie.SE3,
+                         settings: ActiveSettings = ActiveSettings()) -> PoseBelief:
+    """The belief after a grasp at ``T_world_gripper`` failed: the jaws closed on nothing, or
+    hit the object on the way down. Its fingers felt no touch to fuse, but the failure is
+    evidence: every hypothesis at which the map predicts that grasp closes cleanly on the object
+    (:func:`~tactojax.localize.active.predict_grasp`) explains it only by a prediction error, at
+    ``predicted_close_misses``; one at which it is predicted to miss or collide explains it
+    fully. Without this, a belief that a grasp proved wrong would propose the same grasp again.
+
+    Args:
+        view, grid: the object's map and its marching grid.
+        belief: the belief before the grasp (at least one touch; an empty belief is returned as is).
+        T_world_gripper: the commanded gripper pose (fully open) in the belief's world frame, mm.
+        settings: the prediction and ``predicted_close_misses`` (static).
+
+    Returns:
+        the belief with its hypotheses reweighed and the failure's likelihood added to its log
+        evidence (its touches and poses unchanged).
+    """
+    T_world_object = belief.T_world_reference @ belief.T_object_reference.inverse()  # (M,)
+    closes = jax.vmap(lambda T: predict_grasp(grid, view.surface, T, T_world_gripper, gel_size_mm(view),
+                                              settings.prediction, fingers=settings.fingers).valid)(T_world_object)
+    explained = jnp.where(closes, jnp.log(settings.predicted_close_misses), 0.0)
+    log_weights = jnp.where(jnp.isfinite(belief.log_weights), belief.log_weights + explained, -jnp.inf)
+    total = jax.nn.logsumexp(jnp.where(jnp.isfinite(log_weights), log_weights, -jnp.inf))
+    log_weights = jnp.where(jnp.isfinite(total), log_weights - total, belief.log_weights)
+    # The failure's likelihood under this map joins its evidence (P(object) across maps).
+    return belief.replace(log_weights=log_weights,
+                          log_evidence=jnp.where(jnp.isfinite(total), belief.log_evidence + total, belief.log_evidence))
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))

@@ -5,7 +5,8 @@ turns allowed; drawn again, as the protocol does, where no grasp closes on it) a
 first grasp, the protocol's first that closes on it. Then each
 policy chooses every further grasp and the simulator executes it at the object's true
 placement (both fingers recorded; heightmaps predicted from the images by the shape model,
-features by the encoder, as a robot would). A chosen grasp that misses or collides is spent.
+features by the encoder, as a robot would). A chosen grasp that misses or collides is spent,
+and the belief learns from it (:func:`~tactojax.localize.active.observe_failed_grasp`).
 
 Policies:
 
@@ -35,7 +36,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from tactojax.geometry import heightmap_to_points, take
-from tactojax.localize._active import ActiveSettings, next_grasp, propose_grasps
+from tactojax.localize._active import ActiveSettings, next_grasp, observe_failed_grasp, propose_grasps
 from tactojax.localize._belief import BeliefSettings, empty_belief
 from tactojax.localize._evaluate import cloud_moments
 from tactojax.localize._localize import jitted_update
@@ -134,6 +135,8 @@ def run_active_episodes(
                                      T_world_gripper)
                 if grasp is None or not bool(grasp.valid):
                     out.spent[policy][episode, k] = True
+                    if k > 0 and policy != "random":  # a chosen grasp that failed rules poses out
+                        belief = observe_failed_grasp(view, grid, belief, T_world_gripper, settings)
                 else:
                     # The camera's frames, as a dataset stores them (uint8).
                     frames = np.asarray(jnp.round(grasp.imprint.image * 255.0)).astype(np.uint8)

@@ -44,10 +44,12 @@ from tactojax.features import Encoder
 from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
+from tactojax.localize._active import ActiveSettings, observe_failed_grasp
 from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
 from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
 from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
+from tactojax.localize._predict_touch import MarchingGrid, map_marching_grid
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
@@ -299,6 +301,8 @@ class Localizer:
         """Seconds spent compiling at start-up."""
         self._worker: ThreadPoolExecutor | None = None
         self._pending: Future | None = None
+        self._grids = None  # the maps' marching grids (active touch)
+        self._failed = None  # (settings, compiled observe_failed_grasp)
         self.reset()
 
     def reset(self) -> None:
@@ -447,16 +451,58 @@ class Localizer:
         for m, view in enumerate(self.views):
             for touch, T_world_touch in touches:
                 beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
+        return beliefs, self._summary_of(beliefs)
+
+    def observe_failed_grasp(self, T_world_gripper: jaxlie.SE3, settings: ActiveSettings = ActiveSettings()) -> None:
+        """A grasp commanded at ``T_world_gripper`` failed (the jaws closed on nothing, or hit the
+        object): every map's belief learns where the object is not
+        (:func:`~tactojax.localize.active.observe_failed_grasp`), and so does P(object). Before any
+        touch it changes nothing. Compiles once per settings (:meth:`prepare_active`).
+
+        Args:
+            T_world_gripper: the commanded gripper pose (fully open), mm, in the frame of the
+                gripper poses the frames come with.
+            settings: the grasp prediction (the active choice's settings).
+        """
+        self._collect(wait=True)
+        if self._summary is None:
+            return
+        program = self.prepare_active(settings)
+        T_world_gripper = jaxlie.SE3(jnp.asarray(T_world_gripper.wxyz_xyz, jnp.float32))
+        beliefs = [program(view, grid, belief, T_world_gripper)
+                   for view, grid, belief in zip(self.views, self.marching_grids(), self.beliefs)]
+        self.beliefs, self._summary = beliefs, self._summary_of(beliefs)
+        self._fresh = True
+
+    def marching_grids(self) -> tuple[MarchingGrid, ...]:
+        """Every map's :class:`~tactojax.localize.active.MarchingGrid` (what active touch predicts
+        grasps with), built on first use."""
+        if self._grids is None:
+            self._grids = tuple(map_marching_grid(view) for view in self.views)
+        return self._grids
+
+    def prepare_active(self, settings: ActiveSettings = ActiveSettings()):
+        """Build the marching grids and compile :meth:`observe_failed_grasp`'s program for
+        ``settings`` now (an active episode does at its first choice), so that no grasp of the
+        episode compiles. Returns the compiled program."""
+        if self._failed is None or self._failed[0] != settings:
+            pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
+            self._failed = (settings, observe_failed_grasp.lower(self.views[0], self.marching_grids()[0], self._empty[0],
+                                                                 pose, settings).compile())
+        return self._failed[1]
+
+    def _summary_of(self, beliefs: Sequence[PoseBelief]):
+        """What an estimate reports of every map's belief (None: no map explains the touches)."""
         summaries = jax.device_get([self._summarise(b) for b in beliefs])
         probabilities = object_probabilities([s.log_evidence for s in summaries])
         if not probabilities.any():  # no map explains the touches
-            return beliefs, None
+            return None
         chosen = int(np.argmax(probabilities))
         digest = summaries[chosen]
         modes = tuple((jaxlie.SE3(np.asarray(T)), float(p))
                       for T, p in zip(digest.mode_T_world_object, digest.mode_probability) if p > 0)
-        return beliefs, (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
-                         np.asarray(digest.T_world_object, np.float32), float(digest.probability_within), modes)
+        return (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
+                np.asarray(digest.T_world_object, np.float32), float(digest.probability_within), modes)
 
     def _land(self, beliefs: list[PoseBelief], summary) -> None:
         """An update's result becomes the localizer's belief."""

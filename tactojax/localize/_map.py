@@ -37,9 +37,19 @@ class BeliefCalibration:
 
     @staticmethod
     def default() -> BeliefCalibration:
-        """Uncalibrated scales (the temperature a map gets before :func:`fit_calibration`)."""
-        return BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(0.0),
-                                 fusion_exponent=jnp.float32(0.0))
+        """The scales of a map without a fit of its own (before :func:`fit_calibration`): the
+        element-wise median of the five catalog objects' fits (``tactojax calibrate-belief`` on
+        their seed-900 calibration grasps, the bundled encoder; docs/localization.md). The
+        appearance weight belongs to that encoder's kind of features: fit a map whose features
+        come from another kind.
+
+        Measured on objects none of those fits saw (ten YCB scans left out of an encoder trained
+        the same way), against the earlier default (temperature 0.1, no appearance, no discount
+        of repeated touches): the true pose's likelihood after 2 grasps x 2 fingers was higher
+        on all five scans evaluated, and identification among 15 objects rose from 74.6 / 92.1 %
+        to 80.4 / 93.8 % after 1 / 2 grasps."""
+        return BeliefCalibration(temperature=jnp.float32(0.0795), appearance=jnp.float32(6.36),
+                                 fusion_exponent=jnp.float32(0.5))
 
 
 @struct.dataclass

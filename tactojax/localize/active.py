@@ -3,12 +3,14 @@
 :func:`propose_grasps` draws candidate grasps around the belief's leading hypotheses,
 :func:`predict_grasp` predicts what each finger would feel from the map's surface alone,
 :func:`next_grasp` ranks the candidates by the expected gain in P(within 2 mm) (or in entropy),
-and :func:`should_stop` says when the calibrated belief is sure enough.
+:func:`observe_failed_grasp` learns from a grasp that missed or collided, and :func:`should_stop`
+says when the calibrated belief is sure enough.
 """
 
 from tactojax.localize._active import ActiveSettings as ActiveSettings
 from tactojax.localize._active import GraspRanking as GraspRanking
 from tactojax.localize._active import next_grasp as next_grasp
+from tactojax.localize._active import observe_failed_grasp as observe_failed_grasp
 from tactojax.localize._active import propose_grasps as propose_grasps
 from tactojax.localize._active import should_stop as should_stop
 from tactojax.localize._predict_touch import MarchingGrid as MarchingGrid
@@ -25,6 +27,7 @@ __all__ = [
     "PredictionSettings",
     "map_marching_grid",
     "next_grasp",
+    "observe_failed_grasp",
     "predict_grasp",
     "propose_grasps",
     "should_stop",

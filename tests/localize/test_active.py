@@ -6,8 +6,9 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize import BeliefSettings, empty_belief
-from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps, should_stop
+from tactojax.localize import BeliefCalibration, BeliefSettings, empty_belief
+from tactojax.localize.active import (ActiveSettings, map_marching_grid, next_grasp, observe_failed_grasp,
+                                     predict_grasp, propose_grasps, should_stop)
 from tactojax.objects import get_object
 
 from active_fixtures import truth_map
@@ -39,8 +40,11 @@ def belief_over(view, T_world_objects, weights):
     contact = jnp.zeros_like(belief.evidence.contact).at[0, :25, :2].set(jnp.asarray(xy, jnp.float32))
     evidence = belief.evidence.replace(contact=contact, contact_valid=belief.evidence.contact_valid.at[0, :25].set(True))
     log_weights = jnp.log(jnp.asarray(weights, jnp.float32) / np.sum(weights))
+    # Scales of its own (not the library's default): the gains below are sized for them.
+    calibration = BeliefCalibration(temperature=jnp.float32(0.1), appearance=jnp.float32(0.0),
+                                    fusion_exponent=jnp.float32(0.0))
     return belief.replace(T_object_reference=stack(T_world_objects).inverse(), log_weights=log_weights,
-                          evidence=evidence, touch_valid=belief.touch_valid.at[0].set(True))
+                          evidence=evidence, touch_valid=belief.touch_valid.at[0].set(True), calibration=calibration)
 
 
 def shift(x=0.0, y=0.0, z=0.0):
@@ -86,3 +90,31 @@ def test_proposals_close_on_the_object_and_the_stopping_rule(gum_box):
     assert poses.wxyz_xyz.shape == (16, 7) and np.mean(np.asarray(closes)) > 0.9
     assert bool(should_stop(belief, 0.95)) and not bool(should_stop(belief_over(view, [shift(), shift(x=6.0)],
                                                                                   [0.5, 0.5]), 0.95))
+
+
+def test_a_failed_grasp_rules_out_the_poses_where_it_would_have_closed(gum_box):
+    view, grid = gum_box
+    # Two modes 60 mm apart along the box's long axis (81 mm): a grasp over the box's centre at
+    # the first closes on it, and misses the second (the box then spans x = 19.5-100.5 mm).
+    belief = belief_over(view, [shift(), shift(x=60.0)], [0.5, 0.5])
+    belief = belief.replace(log_evidence=jnp.float32(-3.0))
+    settings = ActiveSettings(hypotheses=2, predicted_close_misses=0.05)
+    at_centre = grasp(0.0, 0.0)
+    gel = tuple(n * view.mm_per_px for n in view.packed_heightmaps.shape[1:])  # (height, width) mm
+    closes = [bool(predict_grasp(grid, view.surface, T, at_centre, gel, settings.prediction, fingers=2).valid)
+              for T in (shift(), shift(x=60.0))]
+    assert closes == [True, False]
+    after = observe_failed_grasp(view, grid, belief, at_centre, settings)
+    # Bayes by hand: P(failure | pose) is 0.05 where the grasp closes, 1 where it misses.
+    np.testing.assert_allclose(np.asarray(after.probabilities), [0.025 / 0.525, 0.5 / 0.525], rtol=1e-5)
+    assert float(after.log_evidence) == pytest.approx(-3.0 + np.log(0.525), abs=1e-5)
+    np.testing.assert_array_equal(np.asarray(after.T_object_reference.wxyz_xyz),
+                                  np.asarray(belief.T_object_reference.wxyz_xyz))
+    # A grasp that would close at both poses leaves their odds as they were; an empty belief stays empty.
+    over_both = grasp(25.0, 0.0)
+    assert all(bool(predict_grasp(grid, view.surface, T, over_both, gel, settings.prediction, fingers=2).valid)
+               for T in (shift(), shift(x=60.0)))
+    both = observe_failed_grasp(view, grid, belief, over_both, settings)
+    np.testing.assert_allclose(np.asarray(both.probabilities), [0.5, 0.5], rtol=1e-5)
+    empty = empty_belief(view, BeliefSettings(hypotheses=2, max_touches=2))
+    assert not np.any(np.isfinite(np.asarray(observe_failed_grasp(view, grid, empty, at_centre, settings).log_weights)))

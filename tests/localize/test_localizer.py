@@ -163,6 +163,30 @@ def test_a_background_update_lands_later_with_the_same_belief(live, grasp_frames
     assert background[-1].probability_within == synchronous[-1].probability_within
 
 
+def test_a_failed_grasp_reweighs_every_maps_belief(live, grasp_frames):
+    from tactojax.localize.active import ActiveSettings, map_marching_grid, observe_failed_grasp
+
+    localizer, maps, _ = live
+    localizer.reset()
+    settings = ActiveSettings(hypotheses=2)
+    T_world_gripper = grasp_frames(maps[1], int(_grasp_indices(maps[1], 1)[0]), T_WORLD_OBJECT)[2]
+    localizer.observe_failed_grasp(T_world_gripper, settings)  # before any touch: nothing to learn
+    assert localizer.grasps == 0 and all(not np.isfinite(np.asarray(b.log_weights)).any() for b in localizer.beliefs)
+    image, opening, T_world_gripper, _ = grasp_frames(maps[1], int(_grasp_indices(maps[1], 2)[1]), T_WORLD_OBJECT)
+    localizer.fuse(image, opening, T_world_gripper)
+    before = list(localizer.beliefs)
+    localizer.observe_failed_grasp(T_world_gripper, settings)  # the same grasp again, as if it had failed
+    assert localizer.grasps == 1
+    for view, prior, posterior in zip(localizer.views, before, localizer.beliefs):
+        expected = observe_failed_grasp(view, map_marching_grid(view), prior, T_world_gripper, settings)
+        np.testing.assert_allclose(np.asarray(posterior.log_weights), np.asarray(expected.log_weights), atol=1e-5)
+    # The grasp closes on the object where the belief puts it: its failure is unlikely under
+    # this map, and the map's evidence (P(object)) says so.
+    chosen = localizer.object_ids.index(maps[1].object_id)
+    assert float(localizer.beliefs[chosen].log_evidence) < float(before[chosen].log_evidence) - 0.5
+    localizer.reset()
+
+
 def test_grasps_without_gripper_poses_start_over(live, grasp_frames):
     localizer, maps, _ = live
     localizer.reset()
