@@ -30,28 +30,16 @@ def maps_encoder_name(paths, encoder_name: str | None) -> str:
 
 
 def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool = True):
-    """The maps at ``paths`` with the retrieval features of one encoder (:func:`maps_encoder_name`):
-    those a map stores when it recorded that encoder (or recorded none, as older maps, and the
-    encoder is the default), else its images encoded now (a clear error for a map stored
-    without them).
+    """The maps at ``paths`` with the retrieval features of one encoder (:func:`maps_encoder_name`;
+    :func:`~tactojax.io.load_tactile_map_with_features`).
 
     Returns:
         (maps, name): the maps, and the encoder's name (``encoder_label``).
     """
-    from tactojax.features import encode_images
-    from tactojax.io import load_tactile_map, resolve_encoder, stored_features_encoder, tactile_map_metadata
+    from tactojax.io import load_tactile_map_with_features
 
     name = maps_encoder_name(paths, encoder_name)
-    maps, encoder = [], None
-    for path in paths:
-        tactile_map = load_tactile_map(path)
-        recorded = stored_features_encoder(tactile_map_metadata(path)) or DEFAULT_ENCODER
-        if tactile_map.features.shape[1] == 0 or recorded != name:
-            encoder = encoder or resolve_encoder(name)
-            tactile_map = load_tactile_map(path, images=True)  # encoding needs the images
-            tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(),
-                                                                  progress=progress))
-        maps.append(tactile_map)
+    maps = [load_tactile_map_with_features(path, name, progress=progress) for path in paths]
     names = [m.object_id for m in maps]
     if len(set(names)) != len(names):
         raise ValueError(f"two maps of the same object: {names}")

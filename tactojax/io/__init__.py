@@ -9,11 +9,11 @@ re-exported. This layer sits above the stages: no stage imports it (see ``tactoj
 from tactojax._moved import moved_names
 from tactojax.io._encoder import bundled_encoders as bundled_encoders
 from tactojax.io._encoder import DEFAULT_ENCODER as DEFAULT_ENCODER
+from tactojax.io._encoder import encoder_label as encoder_label
 from tactojax.io._encoder import encoder_metadata as encoder_metadata
 from tactojax.io._encoder import load_encoder as load_encoder
 from tactojax.io._encoder import load_encoder_train_state as load_encoder_train_state
 from tactojax.io._encoder import resolve_encoder as resolve_encoder
-from tactojax.io._encoder import encoder_label as encoder_label
 from tactojax.io._encoder import save_encoder as save_encoder
 from tactojax.io._encoder import save_encoder_train_state as save_encoder_train_state
 from tactojax.io._imprints import load_imprints as load_imprints
@@ -28,6 +28,7 @@ from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import compact_tactile_map as compact_tactile_map
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
+from tactojax.io._map import load_tactile_map_with_features as load_tactile_map_with_features
 from tactojax.io._map import load_tactile_map as load_tactile_map
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
@@ -118,6 +119,7 @@ __all__ = [
     "load_encoder_train_state",
     "load_imprints",
     "load_localization_map",
+    "load_tactile_map_with_features",
     "load_mesh",
     "load_shape_data",
     "load_shape_model",
@@ -137,7 +139,6 @@ __all__ = [
     "repair_dataset",
     "repair_mesh",
     "resolve_encoder",
-    "encoder_label",
     "resolve_shape_model",
     "save_encoder",
     "save_encoder_train_state",

@@ -163,6 +163,23 @@ def stored_features_encoder(header: dict) -> str | None:
     return metadata.get("features_encoder") or fit.get("encoder")
 
 
+def load_tactile_map_with_features(path, encoder_name: str, *, progress: bool = False) -> TactileMap:
+    """The map at ``path`` with the retrieval features of the encoder ``encoder_name`` (an
+    :func:`~tactojax.io.encoder_label`): those it stores when it recorded that encoder (or recorded
+    none, as older maps, and it is the default), else its images encoded now (a clear error for a
+    map stored without them)."""
+    from tactojax.features import encode_images
+    from tactojax.io._encoder import DEFAULT_ENCODER, resolve_encoder
+
+    recorded = stored_features_encoder(tactile_map_metadata(path)) or DEFAULT_ENCODER
+    tactile_map = load_tactile_map(path)
+    if tactile_map.features.shape[1] > 0 and recorded == encoder_name:
+        return tactile_map
+    tactile_map = load_tactile_map(path, images=True)  # features of another encoder or of none: encode the images
+    return tactile_map.with_features(encode_images(resolve_encoder(encoder_name), tactile_map.stored_images(),
+                                                   progress=progress))
+
+
 def load_localization_map(path, *, encoder_name: str | None = None, progress: bool = False):
     """A map file as localization reads it (:class:`~tactojax.localize.LocalizationMap`: its
     imprints with their retrieval features, its surface, the object's symmetries), with the
@@ -171,25 +188,18 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     Args:
         path: a map written by :func:`save_tactile_map` (``tactojax map``).
         encoder_name: the encoder of the retrieval features, when not the one the map records
-            (else the default). The features the map stores are used when they come from it; otherwise the map's images are
-            encoded now (a clear error for a map stored without them). A calibration fit with
+            (else the default): :func:`load_tactile_map_with_features`. A calibration fit with
             another encoder is not used.
         progress: show a progress bar while encoding.
     """
-    from tactojax.features import encode_images
-    from tactojax.io._encoder import DEFAULT_ENCODER, encoder_label, resolve_encoder
+    from tactojax.io._encoder import DEFAULT_ENCODER, encoder_label
     from tactojax.localize import LocalizationMap, calibration_from_json
 
     header = tactile_map_metadata(path)
-    recorded = stored_features_encoder(header) or DEFAULT_ENCODER
-    encoder_name = encoder_label(encoder_name) if encoder_name else recorded
+    encoder_name = encoder_label(encoder_name) if encoder_name else stored_features_encoder(header) or DEFAULT_ENCODER
     fit = header.get("metadata", {}).get("belief_calibration")
     usable = fit is not None and encoder_label(fit.get("encoder", DEFAULT_ENCODER)) == encoder_name
-    tactile_map = load_tactile_map(path)
-    if tactile_map.features.shape[1] == 0 or recorded != encoder_name:
-        tactile_map = load_tactile_map(path, images=True)  # features of unknown origin: encode the images
-        encoder = resolve_encoder(encoder_name)
-        tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=progress))
+    tactile_map = load_tactile_map_with_features(path, encoder_name, progress=progress)
     return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None)
 
 

@@ -200,8 +200,8 @@ def observe_failed_grasp(view: LocalizationMap, grid: MarchingGrid, belief: Pose
     closes = jax.vmap(lambda T: predict_grasp(grid, view.surface, T, T_world_gripper, gel_size_mm(view),
                                               settings.prediction, fingers=settings.fingers).valid)(T_world_object)
     explained = jnp.where(closes, jnp.log(settings.predicted_close_misses), 0.0)
-    log_weights = jnp.where(jnp.isfinite(belief.log_weights), belief.log_weights + explained, -jnp.inf)
-    total = jax.nn.logsumexp(jnp.where(jnp.isfinite(log_weights), log_weights, -jnp.inf))
+    log_weights = belief.log_weights + explained  # empty slots stay -inf
+    total = jax.nn.logsumexp(log_weights)  # log P(failure | this map); -inf for an empty belief
     log_weights = jnp.where(jnp.isfinite(total), log_weights - total, belief.log_weights)
     # The failure's likelihood under this map joins its evidence (P(object) across maps).
     return belief.replace(log_weights=log_weights,
