@@ -156,7 +156,10 @@ def solve_least_squares(
         jacobian, residuals = jax.jacfwd(flat_residuals, has_aux=True)(flat)
         residuals = jnp.where(used, residuals, 0.0)
         cost = jnp.sum(mask_weights * robust_loss(residuals, scale, loss))
-        return residuals, jnp.where(used[:, None], jacobian, 0.0), jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+        # A residual whose derivative is not finite (a kink of a distance function, met exactly)
+        # gives no direction: its row is left out of the step, not allowed to poison it.
+        differentiable = used & jnp.all(jnp.isfinite(jacobian), axis=1)
+        return residuals, jnp.where(differentiable[:, None], jacobian, 0.0), jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
     state = _State(
         theta=flat0,
@@ -198,11 +201,12 @@ def solve_least_squares(
         stationary = (jnp.max(jnp.abs(gradient) * (jnp.abs(theta) + 1.0))
                       <= gradient_tolerance * jnp.maximum(cost, 1e-30))
         delta = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), -gradient)
-        delta = jnp.where(jnp.all(jnp.isfinite(delta)), delta, 0.0)
+        solvable = jnp.all(jnp.isfinite(delta))
+        delta = jnp.where(solvable, delta, 0.0)
 
         failed = ~jnp.isfinite(cost)  # not even theta0 gave a finite cost
-        converged = ~failed & (stationary | small_step | small_decrease)
-        stuck = ~accept & (state.damping >= _MAX_DAMPING)
+        converged = ~failed & solvable & (stationary | small_step | small_decrease)
+        stuck = (~accept & (state.damping >= _MAX_DAMPING)) | ~solvable
         return _State(
             theta=theta,
             residuals=residuals,

@@ -381,6 +381,21 @@ def test_solver_vmaps_like_a_loop():
         assert bool(batched.converged[i]) == bool(single.converged)
 
 
+def test_a_residual_without_a_finite_derivative_does_not_stop_the_solver():
+    """One residual whose derivative is NaN at every theta (a kink met exactly, as a point on a
+    distance function's ridge): it counts in the cost but gives no direction; the fit of the
+    others is scipy's on them alone, and is reported converged."""
+    y = _decay_data(0)
+    kinked = lambda theta: jnp.concatenate([_decay_residuals(theta, jnp.asarray(y, jnp.float32)),  # noqa: E731
+                                            jnp.sqrt(jnp.zeros(1) * theta[0] ** 2)])  # d/dtheta: NaN
+    result = jax.jit(lambda: solve_least_squares(kinked, jnp.asarray(_THETA0), max_iterations=100,
+                                                 robust_scale_mm=0.1, loss="linear"))()
+    reference = scipy.optimize.least_squares(lambda theta: theta[0] * np.exp(-theta[1] * _T) + theta[2] - y,
+                                             _THETA0.astype(np.float64), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    assert bool(result.converged)
+    np.testing.assert_allclose(np.asarray(result.theta), reference.x, rtol=2e-3, atol=2e-3)
+
+
 def test_solver_failures_come_back_as_flags():
     y = _decay_data(0)
     ones = jnp.ones(len(_T), jnp.float32)
