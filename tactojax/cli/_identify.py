@@ -98,7 +98,7 @@ def run_new_grasps(args) -> int:
     confusion = np.zeros((len(names), len(names)), int)  # [true, identified] after the last grasp
     for name, choice in identified.items():
         np.add.at(confusion[names.index(name)], choice[:, grasps - 1], 1)
-    save_png(confusion_figure(confusion, names), args.figure)
+    save_png(confusion_figure(confusion, names, counted="episodes"), args.figure)
     print(f"figure: {args.figure} (confusion after {grasps} grasps)")
     if args.json:
         write_json(args.json, {"objects": names, "test": args.test, "calibration": calibration_to_json(calibration),

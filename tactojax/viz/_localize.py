@@ -61,8 +61,9 @@ def map_size_figure(results: dict[str, dict[float, dict[str, float]]]) -> Figure
     return figure
 
 
-def confusion_figure(confusion: np.ndarray, object_ids) -> Figure:
-    """Identification confusion matrix (rows: true object, columns: identified), row-normalised."""
+def confusion_figure(confusion: np.ndarray, object_ids, *, counted: str = "touches") -> Figure:
+    """Identification confusion matrix (rows: true object, columns: identified), row-normalised;
+    ``counted`` names what a row counts (held-out touches, episodes) for the colour bar."""
     confusion = np.asarray(confusion, float)
     rates = confusion / np.maximum(confusion.sum(axis=1, keepdims=True), 1)
     size = 1.0 + 0.8 * len(object_ids)
@@ -77,5 +78,5 @@ def confusion_figure(confusion: np.ndarray, object_ids) -> Figure:
     axis.set_yticks(range(len(object_ids)), object_ids)
     axis.set_xlabel("identified as")
     axis.set_ylabel("true object")
-    figure.colorbar(image, ax=axis, label="fraction of touches")
+    figure.colorbar(image, ax=axis, label=f"fraction of {counted}")
     return figure
