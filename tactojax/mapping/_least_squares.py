@@ -201,12 +201,11 @@ def solve_least_squares(
         stationary = (jnp.max(jnp.abs(gradient) * (jnp.abs(theta) + 1.0))
                       <= gradient_tolerance * jnp.maximum(cost, 1e-30))
         delta = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), -gradient)
-        solvable = jnp.all(jnp.isfinite(delta))
-        delta = jnp.where(solvable, delta, 0.0)
+        delta = jnp.where(jnp.all(jnp.isfinite(delta)), delta, 0.0)
 
         failed = ~jnp.isfinite(cost)  # not even theta0 gave a finite cost
-        converged = ~failed & solvable & (stationary | small_step | small_decrease)
-        stuck = (~accept & (state.damping >= _MAX_DAMPING)) | ~solvable
+        converged = ~failed & (stationary | small_step | small_decrease)
+        stuck = ~accept & (state.damping >= _MAX_DAMPING)
         return _State(
             theta=theta,
             residuals=residuals,

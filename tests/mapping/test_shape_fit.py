@@ -384,7 +384,7 @@ def test_solver_vmaps_like_a_loop():
 def test_a_residual_without_a_finite_derivative_does_not_stop_the_solver():
     """One residual whose derivative is NaN at every theta (a kink met exactly, as a point on a
     distance function's ridge): it counts in the cost but gives no direction; the fit of the
-    others is scipy's on them alone, and is reported converged."""
+    others is scipy's on them alone (the solver used to stop at once, reporting convergence)."""
     y = _decay_data(0)
     kinked = lambda theta: jnp.concatenate([_decay_residuals(theta, jnp.asarray(y, jnp.float32)),  # noqa: E731
                                             jnp.sqrt(jnp.zeros(1) * theta[0] ** 2)])  # d/dtheta: NaN
