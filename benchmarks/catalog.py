@@ -1,0 +1,152 @@
+"""What a catalog costs against its number of maps (issue 30): memory, build, latency, identification.
+
+For every count N of ``--counts`` (default 1, 5, 20, 50, 100; counts above the maps given are
+left out), the first N maps of the catalog, as the live loop holds them:
+
+- **memory**: the maps padded to one shape (``shared_shapes``), MB and kB per valid imprint;
+- **build**: ``Localizer(maps, ...)`` wall time, and its ``compile_s`` (every program compiled
+  once for all maps: padding makes the update's program the same for one map or a hundred);
+- **latency**: a frame that updates every map's belief at once (``Localizer.fuse``, the grasp's
+  update in the foreground) and a frame between updates (no contact), medians of ``--repeats``;
+- **identification**: the paper's (section VII), every imprint held out of its own map and named
+  by CTI among the N maps (``evaluate_identification``), top-1.
+
+The reference in the same run: a localizer per map, each compiled at its map's *own* shape (no
+padding: a program per map, what per-map branches cost), for counts up to ``--reference-max``.
+
+The frame is a touch of the first map's object from a new-grasps test set (``--test DIR``, or
+simulated once under ``--work``). Build the catalog first:
+
+    tactojax map-catalog scissors tape_roll gum_box screwdriver large_marker ycb:all --out catalog
+    python benchmarks/catalog.py catalog --json catalog.json
+    python benchmarks/catalog.py catalog --quick       # counts 1 and 2, 3 repeats
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import numpy as np
+
+from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, load_tactile_map_with_features, read_test_grasps,
+                         resolve_encoder, resolve_shape_model, stored_features_encoder, tactile_map_metadata)
+from tactojax.localize import LocalizationMap, Localizer, shared_shapes
+from tactojax.localize.evaluation import evaluate_identification
+
+try:  # run as ``python benchmarks/catalog.py`` or as a module
+    from benchmarks._common import (DEFAULT_MODEL, add_common_arguments, format_table, machine_info, new_grasps_set,
+                                    print_machine, write_json)
+except ImportError:
+    from _common import (DEFAULT_MODEL, add_common_arguments, format_table, machine_info, new_grasps_set,
+                         print_machine, write_json)
+
+DEFAULT_COUNTS = "1,5,20,50,100"
+
+
+def map_megabytes(views) -> float:
+    """Bytes of every array of the maps (as the live loop holds them), MB."""
+    return sum(leaf.nbytes for view in views for leaf in jax.tree.leaves(view)) / 1e6
+
+
+def median_ms(call, repeats: int) -> float:
+    """Median wall time of ``call()`` over ``repeats`` calls (after one warm-up call), ms."""
+    call()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(call())
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def own_shape_compile_s(maps, model, encoder) -> float:
+    """Seconds a localizer per map spends compiling (each at its map's own shape: no padding)."""
+    total = 0.0
+    for tactile_map in maps:
+        localizer = Localizer([tactile_map], model, encoder)
+        total += localizer.compile_s
+        localizer.close()
+    return total
+
+
+def one_count(maps, count: int, model, encoder, frame, args) -> dict:
+    """Every figure of one row: the first ``count`` maps."""
+    chosen = maps[:count]
+    views = shared_shapes([LocalizationMap.from_tactile_map(m) for m in chosen])
+    imprints = sum(int(np.sum(m.imprint_valid)) for m in chosen)
+    start = time.perf_counter()
+    localizer = Localizer(chosen, model, encoder)
+    build_s = time.perf_counter() - start
+    image, opening, released = frame
+
+    def update():
+        localizer.reset()
+        return localizer.fuse(image, opening).T_world_object
+
+    row = {"maps": count, "imprints": imprints, "memory_mb": map_megabytes(views),
+           "kb_per_imprint": 1e3 * map_megabytes(views) / max(imprints, 1), "build_s": build_s,
+           "compile_s": localizer.compile_s, "update_ms": median_ms(update, args.repeats),
+           "frame_ms": median_ms(lambda: localizer(released, opening).T_world_object, args.repeats)}
+    localizer.close()
+    if count <= args.reference_max:
+        row["own_shape_compile_s"] = own_shape_compile_s(chosen, model, encoder)
+    if count > 1 and not args.no_identification:
+        row["identification_top1"] = float(evaluate_identification(chosen).accuracy())
+    return row
+
+
+def test_frame(args, object_id: str, model):
+    """(a contact image, its opening, the gel touching nothing) from the first object's test set."""
+    test = new_grasps_set(args, object_id, episodes=1, grasps=1, fingers=1)
+    grasps = read_test_grasps(test, ["image", "opening_mm"], object_id=object_id)
+    released = np.asarray(np.clip(np.asarray(model.background) * 255.0, 0, 255), np.uint8)
+    return np.asarray(grasps["image"]).reshape(-1, *released.shape)[0], float(np.ravel(grasps["opening_mm"])[0]), released
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("maps", nargs="+", metavar="MAP", help="a catalog directory (tactojax map-catalog) or maps")
+    parser.add_argument("--counts", default=DEFAULT_COUNTS, help=f"numbers of maps (default {DEFAULT_COUNTS})")
+    parser.add_argument("--repeats", type=int, default=10, help="timed calls per latency (default 10)")
+    parser.add_argument("--reference-max", type=int, default=5,
+                        help="largest count whose own-shape compilations are timed (default 5)")
+    parser.add_argument("--no-identification", action="store_true", help="skip the identification column")
+    parser.add_argument("--test", help="a new-grasps test set of the first map's object (default: simulated)")
+    parser.add_argument("--work", default="benchmark-data/maps", help="where a simulated test set is cached")
+    parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
+    parser.add_argument("--encoder", help="retrieval encoder (default: the one the maps record)")
+    add_common_arguments(parser, quick="counts 1 and 2, 3 repeats, reference up to 2")
+    args = parser.parse_args(argv)
+    counts = [1, 2] if args.quick else [int(c) for c in args.counts.split(",")]
+    if args.quick:
+        args.repeats, args.reference_max = 3, 2
+    print_machine()
+    paths = expand_catalogs(args.maps)
+    counts = [c for c in counts if c <= len(paths)] or [len(paths)]
+    model = resolve_shape_model(args.model)
+    recorded = {stored_features_encoder(tactile_map_metadata(path)) for path in paths} - {None}
+    encoder_name = args.encoder or (recorded.pop() if len(recorded) == 1 else DEFAULT_ENCODER)
+    encoder = resolve_encoder(encoder_name)
+    maps = [load_tactile_map_with_features(path, encoder_name) for path in paths[:max(counts)]]
+    frame = test_frame(args, maps[0].object_id, model)
+    rows = []
+    for count in counts:
+        rows.append(one_count(maps, count, model, encoder, frame, args))
+        print(f"{count} maps done", flush=True)
+    one = rows[0]
+    header = ["maps", "imprints", "memory MB", "kB / imprint", "build s", "compile s", "own shapes s",
+              "update ms", "x 1 map", "frame ms", "identification top-1"]
+    table = [[r["maps"], r["imprints"], r["memory_mb"], r["kb_per_imprint"], r["build_s"], r["compile_s"],
+              r.get("own_shape_compile_s", "-"), r["update_ms"], r["update_ms"] / one["update_ms"], r["frame_ms"],
+              f"{100 * r['identification_top1']:.1f} %" if "identification_top1" in r else "-"] for r in rows]
+    print(format_table(header, table))
+    if args.json:
+        write_json(args.json, {"benchmark": "catalog", "machine": machine_info(), "command": argv, "maps": paths,
+                               "encoder": encoder_name, "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
