@@ -25,6 +25,7 @@ simulated once under ``--work``). Build the catalog first:
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import jax
@@ -143,7 +144,7 @@ def main(argv=None) -> int:
               f"{100 * r['identification_top1']:.1f} %" if "identification_top1" in r else "-"] for r in rows]
     print(format_table(header, table))
     if args.json:
-        write_json(args.json, {"benchmark": "catalog", "machine": machine_info(), "command": argv, "maps": paths,
+        write_json(args.json, {"benchmark": "catalog", "machine": machine_info(), "command": " ".join(sys.argv if argv is None else ["catalog.py", *argv]), "maps": paths,
                                "encoder": encoder_name, "rows": rows})
     return 0
 
