@@ -3,7 +3,7 @@
 For every count N of ``--counts`` (default 1, 5, 20, 50, 100; counts above the maps given are
 left out), the first N maps of the catalog, as the live loop holds them:
 
-- **memory**: the maps padded to one shape (``shared_shapes``), MB and kB per valid imprint;
+- **memory**: the maps padded to one shape (the localizer's ``views``), MB and kB per valid imprint;
 - **build**: ``Localizer(maps, ...)`` wall time, and its ``compile_s`` (every program compiled
   once for all maps: padding makes the update's program the same for one map or a hundred);
 - **latency**: a frame that updates every map's belief at once (``Localizer.fuse``, the grasp's
@@ -31,9 +31,9 @@ import time
 import jax
 import numpy as np
 
-from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, load_tactile_map_with_features, read_test_grasps,
-                         resolve_encoder, resolve_shape_model, stored_features_encoder, tactile_map_metadata)
-from tactojax.localize import LocalizationMap, Localizer, shared_shapes
+from tactojax.io import (expand_catalogs, load_tactile_map_with_features, maps_encoder_name, read_test_grasps,
+                         resolve_encoder, resolve_shape_model)
+from tactojax.localize import Localizer
 from tactojax.localize.evaluation import evaluate_identification
 
 try:  # run as ``python benchmarks/catalog.py`` or as a module
@@ -75,11 +75,11 @@ def own_shape_compile_s(maps, model, encoder) -> float:
 def one_count(maps, count: int, model, encoder, frame, args) -> dict:
     """Every figure of one row: the first ``count`` maps."""
     chosen = maps[:count]
-    views = shared_shapes([LocalizationMap.from_tactile_map(m) for m in chosen])
     imprints = sum(int(np.sum(m.imprint_valid)) for m in chosen)
     start = time.perf_counter()
     localizer = Localizer(chosen, model, encoder)
     build_s = time.perf_counter() - start
+    views = localizer.views  # the maps padded to one shape, as the live loop holds them
     image, opening, released = frame
 
     def update():
@@ -127,8 +127,7 @@ def main(argv=None) -> int:
     paths = expand_catalogs(args.maps)
     counts = [c for c in counts if c <= len(paths)] or [len(paths)]
     model = resolve_shape_model(args.model)
-    recorded = {stored_features_encoder(tactile_map_metadata(path)) for path in paths} - {None}
-    encoder_name = args.encoder or (recorded.pop() if len(recorded) == 1 else DEFAULT_ENCODER)
+    encoder_name = maps_encoder_name(paths, args.encoder)
     encoder = resolve_encoder(encoder_name)
     maps = [load_tactile_map_with_features(path, encoder_name) for path in paths[:max(counts)]]
     frame = test_frame(args, maps[0].object_id, model)

@@ -2,31 +2,13 @@
 
 from __future__ import annotations
 
-from tactojax.io import DEFAULT_ENCODER
+from tactojax.io import DEFAULT_ENCODER, maps_encoder_name
 
 
 def add_encoder_argument(parser) -> None:
     parser.add_argument("--encoder", default=None,
                         help="feature encoder: bundled:NAME or a checkpoint path; default: the features "
                              f"stored in the maps, else {DEFAULT_ENCODER}")
-
-
-def maps_encoder_name(paths, encoder_name: str | None) -> str:
-    """The encoder a command uses with the maps at ``paths``: ``encoder_name`` when given, else
-    the one the maps record for their stored features (``features_encoder``), else the default.
-
-    Raises:
-        ValueError: no encoder given and the maps record different ones.
-    """
-    from tactojax.io import encoder_label, stored_features_encoder, tactile_map_metadata
-
-    if encoder_name is not None:
-        return encoder_label(encoder_name)
-    recorded = {stored_features_encoder(tactile_map_metadata(path)) for path in paths} - {None}
-    if len(recorded) > 1:
-        raise ValueError(f"the maps store features of different encoders ({', '.join(sorted(recorded))}): "
-                         "pass one with --encoder")
-    return recorded.pop() if recorded else DEFAULT_ENCODER
 
 
 def load_maps_with_features(paths, encoder_name: str | None, *, progress: bool = True):

@@ -28,8 +28,9 @@ from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import compact_tactile_map as compact_tactile_map
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
-from tactojax.io._map import load_tactile_map_with_features as load_tactile_map_with_features
 from tactojax.io._map import load_tactile_map as load_tactile_map
+from tactojax.io._map import load_tactile_map_with_features as load_tactile_map_with_features
+from tactojax.io._map import maps_encoder_name as maps_encoder_name
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
 from tactojax.io._map import stored_features_encoder as stored_features_encoder
@@ -119,16 +120,17 @@ __all__ = [
     "load_encoder_train_state",
     "load_imprints",
     "load_localization_map",
-    "load_tactile_map_with_features",
     "load_mesh",
     "load_shape_data",
     "load_shape_model",
     "load_tactile_map",
+    "load_tactile_map_with_features",
     "load_taxim_calibration",
     "load_torch_state_dict",
     "load_touches",
     "load_train_state",
     "MAP_VERSION",
+    "maps_encoder_name",
     "MESH_UNITS_TO_MM",
     "MeshRepair",
     "MeshRepairedWarning",

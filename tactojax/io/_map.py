@@ -163,6 +163,25 @@ def stored_features_encoder(header: dict) -> str | None:
     return metadata.get("features_encoder") or fit.get("encoder")
 
 
+def maps_encoder_name(paths, encoder_name: str | None = None) -> str:
+    """The encoder whose features go with the maps at ``paths``: ``encoder_name`` when given (an
+    :func:`~tactojax.io.encoder_label`), else the one the maps record for their stored features
+    (``features_encoder``), else the default.
+
+    Raises:
+        ValueError: no encoder given and the maps record different ones.
+    """
+    from tactojax.io._encoder import DEFAULT_ENCODER, encoder_label
+
+    if encoder_name is not None:
+        return encoder_label(encoder_name)
+    recorded = {stored_features_encoder(tactile_map_metadata(path)) for path in paths} - {None}
+    if len(recorded) > 1:
+        raise ValueError(f"the maps store features of different encoders ({', '.join(sorted(recorded))}): "
+                         "pass one with --encoder")
+    return recorded.pop() if recorded else DEFAULT_ENCODER
+
+
 def load_tactile_map_with_features(path, encoder_name: str, *, progress: bool = False) -> TactileMap:
     """The map at ``path`` with the retrieval features of the encoder ``encoder_name`` (an
     :func:`~tactojax.io.encoder_label`): those it stores when it recorded that encoder (or recorded
@@ -196,7 +215,7 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     from tactojax.localize import LocalizationMap, calibration_from_json
 
     header = tactile_map_metadata(path)
-    encoder_name = encoder_label(encoder_name) if encoder_name else stored_features_encoder(header) or DEFAULT_ENCODER
+    encoder_name = maps_encoder_name([path], encoder_name or None)
     fit = header.get("metadata", {}).get("belief_calibration")
     usable = fit is not None and encoder_label(fit.get("encoder", DEFAULT_ENCODER)) == encoder_name
     tactile_map = load_tactile_map_with_features(path, encoder_name, progress=progress)

@@ -6,9 +6,9 @@ import json
 import pytest
 
 from tactojax.cli import main
-from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
-from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, read_catalog, save_shape_model,
-                         save_tactile_map, tactile_map_metadata)
+from tactojax.cli._maps import maps_and_query_encoder
+from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, maps_encoder_name, read_catalog,
+                         save_shape_model, save_tactile_map, tactile_map_metadata)
 
 
 def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_encoder_path, tmp_path, capsys):
