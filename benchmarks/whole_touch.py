@@ -58,7 +58,6 @@ from tactojax.simulate import MappingProtocol
 try:  # run as ``python benchmarks/whole_touch.py`` or as a module
     from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
                                     mapping_grid, print_machine, simulated, write_json)
-    from _peer import PeerPipeline
     from benchmarks._peer import PeerPipeline
 except ImportError:
     from _common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,

@@ -180,7 +180,7 @@ def _localization(args, maps, out: Path) -> dict:
     """Section VI: leave-one-out localization, Table III and histograms."""
     import numpy as np
 
-    from tactojax.cli._maps import histogram_panel, object_symmetries
+    from tactojax.cli._maps import histogram_panel
     from tactojax.localize.evaluation import evaluate_localization
     from tactojax.localize._baselines import parse_method
     from tactojax.viz import localization_histogram_figure, save_png
@@ -192,11 +192,10 @@ def _localization(args, maps, out: Path) -> dict:
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
         if len(valid) > args.queries:
             valid = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
-        symmetries = object_symmetries(tactile_map.object_id)
-        results = evaluate_localization(jax.random.key(args.seed), tactile_map, methods, symmetries=symmetries,
+        results = evaluate_localization(jax.random.key(args.seed), tactile_map, methods,
                                         queries=valid, progress=True)
         payload[tactile_map.object_id] = {m: r.summary() for m, r in results.items()}
-        title, panel = histogram_panel(tactile_map.object_id, results, symmetries)
+        title, panel = histogram_panel(tactile_map.object_id, results)
         histograms[title] = panel
         rows.append([tactile_map.object_id, *(f"{np.median(r.rmse):.1f} ({np.median(r.symmetric_rmse):.1f})"
                                               for r in results.values())])

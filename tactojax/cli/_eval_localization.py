@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._maps import (add_encoder_argument, histogram_panel, is_symmetric, load_maps_with_features,
-                               object_symmetries, stored_calibration)
+                               stored_calibration)
 from tactojax.cli._table import format_table, write_json
 
 DEFAULT_METHODS = "belief,random,cti,cti-icp-1,cti-icp-5"
@@ -66,14 +66,13 @@ def run(args) -> int:
     key = jax.random.key(args.seed)
     rows, payload, histograms, sizes = [], {"methods": methods, "objects": {}}, {}, {}
     for path, tactile_map in zip(args.maps, maps):
-        symmetries = object_symmetries(tactile_map.object_id)
         fit = stored_calibration(path, args.encoder) if "belief" in methods else None
         valid = np.flatnonzero(np.asarray(tactile_map.imprint_valid))
         if args.queries is not None and args.queries < len(valid):
             valid = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
-        results = evaluate_localization(key, tactile_map, methods, calibration=fit, symmetries=symmetries,
+        results = evaluate_localization(key, tactile_map, methods, calibration=fit,
                                         queries=valid, progress=True)
-        symmetric = is_symmetric(symmetries)
+        symmetric = is_symmetric(tactile_map.object_id)
         summaries = {}
         for name, r in results.items():
             s = summaries[name] = r.summary()
@@ -91,14 +90,14 @@ def run(args) -> int:
                          f"{100 * s['symmetric_within_2mm']:.0f} %" if symmetric else "-",
                          s.get("mean_probability_within_2mm", "-"),
                          s["calibration"]["max_gap"] if "calibration" in s else "-"])
-        title, panel = histogram_panel(tactile_map.object_id, results, symmetries)
+        title, panel = histogram_panel(tactile_map.object_id, results)
         histograms[title] = panel
         payload["objects"][tactile_map.object_id] = {"imprints": len(tactile_map), "queries": int(len(valid)),
                                                      "symmetric": symmetric, "calibrated": fit is not None,
                                                      "methods": summaries}
         study_methods = [m for m in methods if m not in ("random", "belief")]
         if args.map_sizes and study_methods:
-            study = map_size_study(key, tactile_map, methods=study_methods, symmetries=symmetries)
+            study = map_size_study(key, tactile_map, methods=study_methods)
             sizes[tactile_map.object_id] = {f: {m: float(np.median(e.rmse)) for m, e in per.items()}
                                             for f, per in study.items()}
             payload["objects"][tactile_map.object_id]["map_size"] = {str(f): v for f, v in sizes[tactile_map.object_id].items()}

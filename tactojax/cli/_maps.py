@@ -88,26 +88,20 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
     return shared_shapes(views), calibrated
 
 
-def object_symmetries(object_id: str):
-    """The catalog object's symmetry group (SE3 batch), or None for objects outside the catalog."""
-    from tactojax.objects import CATALOG, get_object
+def is_symmetric(object_id: str) -> bool:
+    """Whether the catalog gives the object a symmetry beyond the identity (a continuous axis,
+    n-fold turns or flips; the maps' views take it from the catalog by object id)."""
+    from tactojax.objects import CATALOG, NO_SYMMETRY, get_object
 
-    if object_id not in CATALOG:
-        return None
-    return get_object(object_id).symmetry.transforms()
-
-
-def is_symmetric(symmetries) -> bool:
-    """Whether :func:`object_symmetries` gave more than the identity."""
-    return symmetries is not None and len(symmetries.wxyz_xyz) > 1
+    return object_id in CATALOG and get_object(object_id).symmetry != NO_SYMMETRY
 
 
-def histogram_panel(object_id: str, results: dict, symmetries) -> tuple[str, dict]:
+def histogram_panel(object_id: str, results: dict) -> tuple[str, dict]:
     """One panel of the localization histogram: ``(title, {method: per-query RMSE, mm})``.
 
     A symmetric object's plain RMSE mostly measures which symmetric copy was picked, so its
     panel shows the symmetry-aware RMSE, and says so.
     """
-    if is_symmetric(symmetries):
+    if is_symmetric(object_id):
         return f"{object_id} (symmetry-aware)", {name: r.symmetric_rmse for name, r in results.items()}
     return object_id, {name: r.rmse for name, r in results.items()}

@@ -44,7 +44,7 @@ from jaxtyping import Array, Bool, Float, Int
 from tactojax.geometry import take
 from tactojax.localize._candidates import CandidateGrid
 from tactojax.localize._correspondences import valid_centroid
-from tactojax.localize._evaluate import cloud_moments, moment_rmse
+from tactojax.localize._evaluate import closest_copy_square, cloud_moments, moment_rmse
 from tactojax.localize._icp import IcpSettings, icp
 from tactojax.localize._likelihood import LikelihoodSettings, align_depth, log_likelihood
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
@@ -137,7 +137,12 @@ class PoseBelief:
     touch_valid: Bool[Array, "T"]
     """Which slots hold a touch."""
     symmetries: jaxlie.SE3
-    """(S,) object-frame transforms that map the object onto itself (identity first)."""
+    """(S,) the object's symmetric copies modulo turns about ``symmetry_axis`` (identity first;
+    :attr:`LocalizationMap.symmetries`)."""
+    symmetry_axis: Float[Array, "3"]
+    """Unit axis of the object's continuous rotational symmetry, object frame (zeros for none)."""
+    symmetry_centre: Float[Array, "3"]
+    """A point on that axis, object frame, mm."""
     calibration: BeliefCalibration
     """The likelihood's scales."""
     log_evidence: Float[Array, ""]
@@ -261,13 +266,16 @@ def hypothesis_distances(belief: PoseBelief, T_object_reference: jaxlie.SE3, *,
                          symmetric: bool = False) -> Float[Array, "M"]:
     """(M,) RMSE (mm) between the remembered touches' contact points placed by every hypothesis
     and by ``T_object_reference`` (the paper's metric over the fused touches); with
-    ``symmetric``, by its closest symmetric copy."""
+    ``symmetric``, by its closest symmetric copy: every copy, each also turned to its closest
+    about the continuous symmetry axis (:func:`closest_copy_square`, exact)."""
     mean, covariance = cloud_moments(*reference_cloud(belief))
     if not symmetric:
         return moment_rmse(mean, covariance, belief.T_object_reference, T_object_reference)
-    copies = jax.vmap(lambda S: S @ T_object_reference)(belief.symmetries)  # (S,)
-    per_copy = jax.vmap(lambda T: moment_rmse(mean, covariance, belief.T_object_reference, T))(copies)  # (S, M)
-    return jnp.min(per_copy, axis=0)
+    one = lambda T: jaxlie.SE3(T.wxyz_xyz[None])  # noqa: E731  (a batch of one cloud's pose)
+    square = jax.vmap(lambda T: closest_copy_square(mean[None], covariance[None], jnp.ones(1, bool), one(T),
+                                                    one(T_object_reference), belief.symmetries,
+                                                    belief.symmetry_axis, belief.symmetry_centre))
+    return jnp.sqrt(square(belief.T_object_reference))
 
 
 def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSettings()) -> PoseBelief:
@@ -286,7 +294,9 @@ def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSetting
                       log_weights=jnp.full((count,), -jnp.inf, jnp.float32), evidence=evidence,
                       features=jnp.zeros((slots, view.features.shape[1])),
                       T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
-                      T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries, calibration=view.calibration, log_evidence=jnp.float32(-jnp.inf))
+                      T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries,
+                      symmetry_axis=view.symmetry_axis, symmetry_centre=view.symmetry_centre,
+                      calibration=view.calibration, log_evidence=jnp.float32(-jnp.inf))
 
 
 def _unit(feature: Float[Array, "F"]) -> Float[Array, "F"]:

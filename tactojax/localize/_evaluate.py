@@ -320,8 +320,9 @@ def evaluate_localization(
         tactile_map: the map, with features.
         methods: ``"belief"`` and baselines (see :func:`~tactojax.localize.baselines.localize_baseline`).
         calibration: the belief's scales (default: uncalibrated).
-        symmetries: (S,) object-frame symmetry transforms for the symmetry-aware RMSE (default:
-            the catalog's for a catalog object).
+        symmetries: (S,) the object's symmetric copies modulo turns about its continuous axis,
+            for the symmetry-aware RMSE (default: the catalog's for a catalog object; see
+            :attr:`~tactojax.localize.LocalizationMap.symmetries`).
         settings: ICP parameters of the baselines.
         belief_settings: the belief's parameters (default :class:`~tactojax.localize.BeliefSettings`).
         points_per_touch: contact points of the ICP baselines.

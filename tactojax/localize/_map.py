@@ -86,11 +86,12 @@ class LocalizationMap:
     surface: MapSurface
     """The whole map's signed-distance surface (the belief's likelihood reads it)."""
     symmetries: jaxlie.SE3
-    """(S,) object-frame transforms that map the object onto itself (identity first)."""
+    """(S,) object-frame transforms that map the object onto itself (identity first), one per
+    copy that no turn about ``symmetry_axis`` reaches (:meth:`~tactojax.objects.ObjectSymmetry.copies`)."""
     symmetry_axis: Float[Array, "3"]
     """Unit axis of the object's continuous rotational symmetry, object frame (zeros for none):
-    ``symmetries`` samples its turns; the evaluation's symmetry-aware errors turn each copy about
-    it to the closest, exactly."""
+    every symmetry-aware distance (the evaluation's errors, the belief's modes and confidence)
+    turns each copy about it to the closest, exactly."""
     symmetry_centre: Float[Array, "3"]
     """A point on that axis, object frame, mm."""
     calibration: BeliefCalibration
@@ -111,12 +112,13 @@ class LocalizationMap:
             tactile_map: the map.
             calibration: the belief's scales (:func:`~tactojax.localize.fit_calibration`, stored
                 in the map file by ``tactojax calibrate-belief``; default: uncalibrated).
-            symmetries: (S,) the object's symmetry transforms (default: the catalog's for a
-                catalog object, else none but the identity).
+            symmetries: (S,) the object's symmetric copies modulo turns about its continuous
+                axis (default: the catalog's for a catalog object, else none but the identity).
+                A sampled continuous group (:meth:`~tactojax.objects.ObjectSymmetry.transforms`)
+                gives the same distances, more slowly.
             continuous_symmetry: ``(axis, centre)``, the unit axis of the object's continuous
-                rotational symmetry and a point on it (object frame, mm), whose turns
-                ``symmetries`` samples; zeros for none (default: the catalog's for a catalog
-                object, else none).
+                rotational symmetry and a point on it (object frame, mm); zeros for none
+                (default: the catalog's for a catalog object, else none).
             surface: how the surface grid is built.
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
@@ -143,6 +145,15 @@ class LocalizationMap:
 
     def __len__(self) -> int:
         return int(self.openings.shape[0])
+
+    @property
+    def symmetric(self) -> bool:
+        """Whether the object has a symmetry beyond the identity: a continuous axis, or a copy
+        that is not the identity (the identity copies :func:`shared_shapes` pads with do not
+        count). Host-side (reads the arrays)."""
+        copies = np.asarray(self.symmetries.wxyz_xyz)
+        identity = np.asarray(jaxlie.SE3.identity().wxyz_xyz)
+        return bool(np.any(np.asarray(self.symmetry_axis) != 0) or np.any(np.abs(copies[1:] - identity) > 1e-6))
 
     def padded(self, multiple: int) -> LocalizationMap:
         """The map padded with invalid imprints to a multiple of ``multiple`` imprints.
@@ -240,12 +251,13 @@ def map_touch(view: LocalizationMap, index: int | Int[Array, ""]) -> Touch:
 
 
 def catalog_symmetries(object_id: str) -> jaxlie.SE3:
-    """(S,) the catalog object's symmetry transforms; the identity alone outside the catalog."""
+    """(S,) the catalog object's symmetric copies modulo its continuous turns
+    (:meth:`~tactojax.objects.ObjectSymmetry.copies`); the identity alone outside the catalog."""
     from tactojax.objects import CATALOG, get_object
 
     if object_id not in CATALOG:
         return jaxlie.SE3.identity((1,))
-    return get_object(object_id).symmetry.transforms()
+    return get_object(object_id).symmetry.copies()
 
 
 def _continuous_symmetry(object_id: str, given) -> dict[str, jax.Array]:

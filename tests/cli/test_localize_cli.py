@@ -151,11 +151,11 @@ def test_localize_rejects_bad_input(map_files, touches, lookup_model, tmp_path, 
 def test_histogram_panel_shows_the_symmetry_aware_error_of_symmetric_objects():
     from types import SimpleNamespace
 
-    from tactojax.cli._maps import histogram_panel, object_symmetries
+    from tactojax.cli._maps import histogram_panel
 
     results = {"cti": SimpleNamespace(rmse=np.array([80.0]), symmetric_rmse=np.array([0.1]))}
-    title, panel = histogram_panel("gum_box", results, object_symmetries("gum_box"))
+    title, panel = histogram_panel("gum_box", results)
     assert title == "gum_box (symmetry-aware)" and panel["cti"][0] == 0.1
-    title, panel = histogram_panel("scissors", results, object_symmetries("scissors"))  # identity only
+    title, panel = histogram_panel("scissors", results)  # identity only
     assert title == "scissors" and panel["cti"][0] == 80.0
-    assert histogram_panel("my_part", results, None) == ("my_part", {"cti": results["cti"].rmse})
+    assert histogram_panel("my_part", results) == ("my_part", {"cti": results["cti"].rmse})

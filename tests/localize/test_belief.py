@@ -119,6 +119,7 @@ def test_maps_padded_to_one_shape_localize_as_before(bumps_view, ridges_view, sy
     padded, other = shared_shapes([bumps_view, larger])
     assert padded.surface.distance.shape == other.surface.distance.shape == larger.surface.distance.shape
     assert len(padded) == len(other) == len(larger) and padded.symmetries.wxyz_xyz.shape == (2, 7)
+    assert not padded.symmetric and other.symmetric  # identity copies of the padding do not count
     touches = [synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y)) for x, y in ((1.5, -1.0), (-2.0, 2.5))]
     beliefs = []
     for view in (bumps_view, padded):

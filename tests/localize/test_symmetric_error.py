@@ -78,3 +78,36 @@ def test_no_axis_turns_nothing():
     T = jaxlie.SE3.exp(jnp.array([[1.0, 2.0, 3.0, 0.1, 0.2, 0.3]]))
     turn = closest_turn_about_axis(mean, covariance, jnp.ones(1, bool), T, _turn(0.5) @ T, jnp.zeros(3), CENTRE)
     np.testing.assert_allclose(np.asarray(turn.wxyz_xyz), np.asarray(jaxlie.SE3.identity().wxyz_xyz), atol=1e-6)
+
+
+def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belief_settings):
+    """The belief's distances up to symmetry (its modes, P(within 2 mm)) from the copies that no
+    turn reaches plus the closed-form turn equal a search over every copy and turn."""
+    from tactojax.localize._belief import empty_belief, hypothesis_distances, reference_cloud
+    from tactojax.objects import ObjectSymmetry
+
+    copies = ObjectSymmetry(axis="y", flips=("z",), centre=tuple(np.asarray(CENTRE))).copies()
+    assert copies.wxyz_xyz.shape == (2, 7)
+    view = bumps_view.replace(symmetries=copies, symmetry_axis=AXIS, symmetry_centre=CENTRE)
+    belief = empty_belief(view, belief_settings)
+    rng = np.random.default_rng(3)
+    contact = belief.evidence.contact.at[0].set(jnp.asarray(rng.normal(0, 4, belief.evidence.contact.shape[1:])
+                                                            + [0, 0, 40.0], jnp.float32))
+    evidence = belief.evidence.replace(contact=contact, contact_valid=belief.evidence.contact_valid.at[0].set(True))
+    T_reference = jaxlie.SE3.exp(jnp.array([10.0, 20.0, 5.0, 0.3, -0.2, 0.5]))
+    M = belief.log_weights.shape[0]
+    turns = _turn(jnp.asarray(rng.uniform(-np.pi, np.pi, M), jnp.float32))
+    copy = jaxlie.SE3(copies.wxyz_xyz[rng.integers(0, 2, M)])
+    noise = jaxlie.SE3.exp(jnp.asarray(rng.normal(0, [1.0] * 3 + [0.03] * 3, (M, 6)), jnp.float32))
+    hypotheses = turns @ copy @ T_reference @ noise
+    belief = belief.replace(evidence=evidence, touch_valid=belief.touch_valid.at[0].set(True),
+                            T_object_reference=hypotheses)
+    distances = np.asarray(hypothesis_distances(belief, T_reference, symmetric=True))
+    moments = [cloud_moments(*reference_cloud(belief))]
+    for m in range(M):
+        T_m = jaxlie.SE3(hypotheses.wxyz_xyz[m:m + 1])
+        reference = min(_brute_force(moments, T_m, jaxlie.SE3((jaxlie.SE3(copies.wxyz_xyz[c]) @ T_reference).wxyz_xyz[None]))
+                        for c in range(2))
+        assert distances[m] == pytest.approx(reference, abs=2e-3)
+    plain = np.asarray(hypothesis_distances(belief, T_reference))
+    assert np.all(distances <= plain + 1e-5) and np.any(distances < plain - 1.0)

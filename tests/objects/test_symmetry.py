@@ -52,3 +52,28 @@ def test_every_catalog_object_has_a_symmetry_group():
         if name in ("scissors", "large_marker", "screwdriver", "foam_brick"):
             continue  # YCB scans: covered by the data-package tests
         assert isinstance(get_object(name).symmetry, ObjectSymmetry)
+
+
+@pytest.mark.parametrize("symmetry", [ObjectSymmetry(axis="y", flips=("z",), centre=(1.0, 2.0, 3.0)),
+                                      ObjectSymmetry(axis="x"), ObjectSymmetry(axis="x", fold=2, flips=("z",)),
+                                      ObjectSymmetry()])
+def test_copies_and_turns_about_the_axis_make_the_whole_group(symmetry):
+    """Every sampled element is one of the copies followed by a turn about the continuous axis
+    (a rotation about that axis that leaves the centre fixed), and the copies are distinct
+    modulo those turns."""
+    group, copies = symmetry.transforms(step_deg=10.0), symmetry.copies()
+    axis, centre = symmetry.continuous_axis()
+    continuous = np.any(axis != 0)
+    assert len(copies.wxyz_xyz) == (1 + len(symmetry.flips) if continuous else len(group.wxyz_xyz))
+    np.testing.assert_allclose(copies.wxyz_xyz[0], [1, 0, 0, 0, 0, 0, 0], atol=1e-7)
+
+    def is_turn(T):  # a rotation about the axis through the centre (the identity when there is none)
+        rotation = np.asarray(T.rotation().as_matrix())
+        fixes_centre = np.allclose(np.asarray(T @ jnp.asarray(centre)), centre, atol=1e-4)
+        fixes_axis = np.allclose(rotation @ axis, axis, atol=1e-5) if continuous else np.allclose(rotation, np.eye(3),
+                                                                                                  atol=1e-5)
+        return fixes_centre and fixes_axis
+
+    for g in range(len(group.wxyz_xyz)):
+        matches = [is_turn(_item(group, g) @ _item(copies, c).inverse()) for c in range(len(copies.wxyz_xyz))]
+        assert sum(matches) == 1
