@@ -33,7 +33,7 @@ from tactojax.cli import format_table as _format_table
 from tactojax.cli import write_json as write_json
 from tactojax.features import encode_images
 from tactojax.io import (DEFAULT_ENCODER, catalog_slug, load_tactile_map, read_grasps, save_tactile_map,
-                         tactile_map_metadata)
+                         stored_features_encoder, tactile_map_metadata)
 from tactojax.localize import calibration_from_json
 from tactojax.mapping import build_tactile_map
 from tactojax.objects import get_object
@@ -184,7 +184,9 @@ def saved_map(path, encoder, encoder_name: str, *, images: bool = False):
     tactile_map = load_tactile_map(path, images=images)
     metadata = tactile_map_metadata(path).get("metadata", {})
     stored = metadata.get("belief_calibration")
-    source = metadata.get("encoder", (stored or {}).get("encoder"))
+    # The features' encoder as the library reads it (``features_encoder``, or the calibration's);
+    # a benchmark's own cache records it as ``encoder``.
+    source = stored_features_encoder({"metadata": metadata}) or metadata.get("encoder")
     if tactile_map.features.shape[1] == 0 or source != encoder_name:  # encoded anew: the images are needed
         images = load_tactile_map(path, images=True).stored_images()
         tactile_map = tactile_map.with_features(encode_images(encoder, images, progress=True))

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import LocalizationMap
+from tactojax.localize import LocalizationMap, MapSurface
 from tactojax.localize.evaluation import evaluate_new_grasps, load_test_episodes
 from tactojax.objects import get_object
 
@@ -46,12 +46,12 @@ def true_surface(view: LocalizationMap, object_id: str, reach_mm: float = REACH_
     """``view`` with its surface grid replaced by the object's exact signed distance at the same
     cells (NaN, unknown, farther than ``reach_mm`` from the surface)."""
     solid = get_object(object_id).solid
-    grid = view.surface.distance
-    cells = jnp.stack(jnp.meshgrid(*(jnp.arange(n) for n in grid.shape), indexing="ij"), -1).reshape(-1, 3)
-    centres = view.surface.origin + cells * view.surface.pitch_mm
-    distance = jax.lax.map(solid.sdf, centres, batch_size=4096).reshape(grid.shape)
-    distance = jnp.where(jnp.abs(distance) <= reach_mm, distance, jnp.nan).astype(jnp.float32)
-    return view.replace(surface=view.surface.replace(distance=distance))
+    surface = view.surface
+    cells = jnp.stack(jnp.meshgrid(*(jnp.arange(n) for n in surface.shape), indexing="ij"), -1).reshape(-1, 3)
+    centres = surface.origin + cells * surface.pitch_mm
+    distance = jax.lax.map(solid.sdf, centres, batch_size=4096).reshape(surface.shape)
+    distance = jnp.where(jnp.abs(distance) <= reach_mm, distance, jnp.nan)
+    return view.replace(surface=MapSurface.from_dense(distance, surface.origin, surface.pitch_mm))
 
 
 def exact_touches(episodes, test, object_id: str):

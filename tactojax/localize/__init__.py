@@ -41,6 +41,8 @@ from tactojax.localize._map import BeliefCalibration as BeliefCalibration
 from tactojax.localize._map import LocalizationMap as LocalizationMap
 from tactojax.localize._map import shared_shapes as shared_shapes
 from tactojax.localize._map import Touch as Touch
+from tactojax.localize._surface import MapSurface as MapSurface
+from tactojax.localize._surface import SurfaceSettings as SurfaceSettings
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
@@ -55,7 +57,9 @@ __all__ = [
     "LocalizationMap",
     "Localizer",
     "MapLibrary",
+    "MapSurface",
     "PoseBelief",
+    "SurfaceSettings",
     "Touch",
     "Tracker",
     "TrackingSettings",

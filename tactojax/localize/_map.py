@@ -278,7 +278,7 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     """The maps padded to one shape, so that everything that reads them compiles once for all
     (maps that already share one are returned as they are):
     invalid imprints up to the largest map's count, surface grids extended on their far sides with
-    unknown cells (NaN) up to the largest grid's, symmetry lists with identity copies up to the
+    unknown blocks up to the largest grid's and holding as many stored blocks as the most, symmetry lists with identity copies up to the
     longest (a copy of the identity changes no distance up to symmetry).
 
     Raises:
@@ -294,15 +294,14 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     if len({tuple(jnp.shape(x) for x in jax.tree.leaves(view)) for view in views}) == 1:
         return views  # already one shape (maps padded before)
     count = max(len(v) for v in views)
-    grid = tuple(max(v.surface.distance.shape[axis] for v in views) for axis in range(3))
+    grid = tuple(max(v.surface.block_index.shape[axis] for v in views) for axis in range(3))
+    blocks = max(v.surface.blocks.shape[0] for v in views)
     copies = max(v.symmetries.wxyz_xyz.shape[0] for v in views)
 
     def extended(view: LocalizationMap) -> LocalizationMap:
-        distance = view.surface.distance
-        distance = jnp.pad(distance, [(0, n - m) for n, m in zip(grid, distance.shape)], constant_values=jnp.nan)
         symmetries = view.symmetries.wxyz_xyz
         identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (copies - symmetries.shape[0], 7))
-        return view.padded_to(count).replace(surface=view.surface.replace(distance=distance),
+        return view.padded_to(count).replace(surface=view.surface.padded_to(grid, blocks),
                                              symmetries=jaxlie.SE3(jnp.concatenate([symmetries, identity])))
 
     return [extended(view) for view in views]

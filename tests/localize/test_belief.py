@@ -63,6 +63,51 @@ def test_shallow_stored_points_make_no_surface(bumps_map, bumps_view, synthetic)
     assert np.all(np.asarray(known)) and np.median(np.abs(np.asarray(distance))) < 0.02
 
 
+def _trilinear_reference(dense, origin, pitch, points):
+    """NumPy: trilinear interpolation over the known (finite) corners of each point's cell, weights
+    renormalised; unknown (0) outside the grid or with no known corner."""
+    shape = np.array(dense.shape)
+    values, known = [], []
+    for p in points:
+        cell = (p - origin) / pitch
+        if np.any(cell < 0) or np.any(cell > shape - 1):
+            values.append(0.0), known.append(False)
+            continue
+        low = np.clip(np.floor(cell), 0, shape - 2).astype(int)
+        total = weighted = 0.0
+        for corner in np.ndindex(2, 2, 2):
+            value = dense[tuple(low + corner)]
+            if np.isfinite(value):
+                w = np.prod([f if c else 1 - f for c, f in zip(corner, cell - low)]) + 1e-6
+                total, weighted = total + w, weighted + w * value
+        values.append(weighted / total if total > 0 else 0.0), known.append(total > 0)
+    return np.array(values), np.array(known)
+
+
+def test_sparse_surface_reads_like_its_dense_grid():
+    """Stored in blocks (only those with a known cell), the grid reads as the dense one does;
+    padding to a larger shape changes no read."""
+    rng = np.random.default_rng(4)
+    shape, origin, pitch = (13, 10, 7), np.array([-1.0, 2.0, 0.5]), 0.5
+    dense = np.where(rng.uniform(size=shape) < 0.15, rng.uniform(-3.0, 3.0, shape), np.nan).astype(np.float32)
+    dense[:5] = np.nan  # whole unknown blocks
+    points = origin + rng.uniform(-1.0, np.array(shape) * pitch + 0.5, (400, 3))
+    points = np.concatenate([points, origin + np.argwhere(np.isfinite(dense))[:20] * pitch])  # exactly on cells
+    # The grid it represents: extended to whole blocks of 4 cells with unknown ones.
+    whole = np.pad(dense, [(0, -n % 4) for n in shape], constant_values=np.nan)
+    expected, expected_known = _trilinear_reference(whole, origin, pitch, points)
+    surface = MapSurface.from_dense(dense, origin, pitch)
+    assert surface.blocks.shape[0] < np.prod(surface.block_index.shape) + 1  # not every block is stored
+    np.testing.assert_allclose(np.asarray(surface.distance), whole, atol=0)  # NaN where NaN
+    for stored in (surface, surface.padded_to((6, 5, 4), surface.blocks.shape[0] + 3)):
+        value, known = stored.signed_distance(jnp.asarray(points, jnp.float32))
+        np.testing.assert_array_equal(np.asarray(known), expected_known)
+        np.testing.assert_allclose(np.asarray(value), expected, atol=1e-5)
+    nearest, nearest_known = surface.signed_distance(jnp.asarray(points[-20:], jnp.float32), interpolate=False)
+    assert np.all(np.asarray(nearest_known))
+    np.testing.assert_allclose(np.asarray(nearest), dense[np.isfinite(dense)][:20], atol=1e-5)
+
+
 def test_likelihood_matches_a_numpy_reference():
     """A planar signed-distance field (trilinear interpolation is then exact), known for x < 1 mm."""
     pitch, shape = 0.5, (13, 11, 9)
@@ -71,8 +116,7 @@ def test_likelihood_matches_a_numpy_reference():
     centre = np.array([0.0, 0.0, -0.6])
     cells = origin + np.stack(np.meshgrid(*(np.arange(n) for n in shape), indexing="ij"), -1) * pitch
     field = np.where(cells[..., 0] < 1.0, (cells - centre) @ normal, np.nan)
-    surface = MapSurface(distance=jnp.asarray(field, jnp.float32), origin=jnp.asarray(origin, jnp.float32),
-                         pitch_mm=pitch)
+    surface = MapSurface.from_dense(field, origin, pitch)
     rng = np.random.default_rng(0)
     contact = np.stack([rng.uniform(-2.4, 0.4, 20), rng.uniform(-1.9, 1.9, 20), rng.uniform(-1.2, 0.0, 20)], -1)
     contact = np.concatenate([contact, [[2.5, 0.0, -0.5]]])  # where the map knows nothing
@@ -113,11 +157,13 @@ def test_maps_padded_to_one_shape_localize_as_before(bumps_view, ridges_view, sy
     the belief then compiles once for both, and the padding changes nothing it finds."""
     larger = ridges_view.padded_to(len(ridges_view) + 7)
     turn = jaxlie.SE3.from_rotation(jaxlie.SO3.from_z_radians(jnp.pi)).wxyz_xyz[None]
-    larger = larger.replace(surface=larger.surface.replace(distance=jnp.pad(larger.surface.distance, 3,
-                                                                            constant_values=jnp.nan)),
+    wider = MapSurface.from_dense(np.pad(np.asarray(larger.surface.distance), 5, constant_values=np.nan),
+                                  larger.surface.origin, larger.surface.pitch_mm)
+    larger = larger.replace(surface=wider,
                             symmetries=jaxlie.SE3(jnp.concatenate([larger.symmetries.wxyz_xyz, turn])))
     padded, other = shared_shapes([bumps_view, larger])
-    assert padded.surface.distance.shape == other.surface.distance.shape == larger.surface.distance.shape
+    assert padded.surface.shape == other.surface.shape == larger.surface.shape
+    assert padded.surface.blocks.shape == other.surface.blocks.shape
     assert len(padded) == len(other) == len(larger) and padded.symmetries.wxyz_xyz.shape == (2, 7)
     assert not padded.symmetric and other.symmetric  # identity copies of the padding do not count
     touches = [synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y)) for x, y in ((1.5, -1.0), (-2.0, 2.5))]
