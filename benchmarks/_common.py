@@ -173,7 +173,7 @@ def object_map(work, name: str, model, model_name: str, encoder, encoder_name: s
                                     T_world_object=grasps["T_world_object"])
     tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.stored_images(), progress=True))
     save_tactile_map(cached, tactile_map, metadata={"data": str(dataset), "model": model_name,
-                                                    "encoder": encoder_name})
+                                                    "features_encoder": encoder_name})
     return tactile_map
 
 
@@ -182,11 +182,12 @@ def saved_map(path, encoder, encoder_name: str, *, images: bool = False):
     that encoder, else encoded now) and its stored belief calibration when fit with that
     encoder (None: uncalibrated). ``images``: read its tactile images too."""
     tactile_map = load_tactile_map(path, images=images)
-    metadata = tactile_map_metadata(path).get("metadata", {})
+    header = tactile_map_metadata(path)
+    metadata = header.get("metadata", {})
     stored = metadata.get("belief_calibration")
-    # The features' encoder as the library reads it (``features_encoder``, or the calibration's);
-    # a benchmark's own cache records it as ``encoder``.
-    source = stored_features_encoder({"metadata": metadata}) or metadata.get("encoder")
+    # The features' encoder as the library reads it; caches written by object_map before it used
+    # the library's key recorded it as ``encoder``.
+    source = stored_features_encoder(header) or metadata.get("encoder")
     if tactile_map.features.shape[1] == 0 or source != encoder_name:  # encoded anew: the images are needed
         images = load_tactile_map(path, images=True).stored_images()
         tactile_map = tactile_map.with_features(encode_images(encoder, images, progress=True))

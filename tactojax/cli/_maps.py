@@ -91,9 +91,9 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
 def is_symmetric(object_id: str) -> bool:
     """Whether the catalog gives the object a symmetry beyond the identity (a continuous axis,
     n-fold turns or flips; the maps' views take it from the catalog by object id)."""
-    from tactojax.objects import CATALOG, NO_SYMMETRY, get_object
+    from tactojax.objects import NO_SYMMETRY, object_symmetry
 
-    return object_id in CATALOG and get_object(object_id).symmetry != NO_SYMMETRY
+    return object_symmetry(object_id) != NO_SYMMETRY
 
 
 def histogram_panel(object_id: str, results: dict) -> tuple[str, dict]:

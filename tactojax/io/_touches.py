@@ -14,11 +14,9 @@ from tactojax.io._map import read_grasps
 
 def catalog_symmetry(object_id: str) -> np.ndarray:
     """(S, 4, 4) symmetry transforms of a catalog object, or just the identity for others."""
-    from tactojax.objects import CATALOG, get_object
+    from tactojax.objects import object_symmetry
 
-    if object_id not in CATALOG:
-        return np.eye(4, dtype=np.float32)[None]
-    return np.asarray(get_object(object_id).symmetry.transforms().as_matrix(), np.float32)
+    return np.asarray(object_symmetry(object_id).transforms().as_matrix(), np.float32)
 
 
 def load_touches(paths, *, objects: list[str] | None = None, symmetries: bool = True) -> TouchData:

@@ -253,24 +253,17 @@ def map_touch(view: LocalizationMap, index: int | Int[Array, ""]) -> Touch:
 def catalog_symmetries(object_id: str) -> jaxlie.SE3:
     """(S,) the catalog object's symmetric copies modulo its continuous turns
     (:meth:`~tactojax.objects.ObjectSymmetry.copies`); the identity alone outside the catalog."""
-    from tactojax.objects import CATALOG, get_object
+    from tactojax.objects import object_symmetry
 
-    if object_id not in CATALOG:
-        return jaxlie.SE3.identity((1,))
-    return get_object(object_id).symmetry.copies()
+    return object_symmetry(object_id).copies()
 
 
 def _continuous_symmetry(object_id: str, given) -> dict[str, jax.Array]:
     """``given`` (axis, centre), else the catalog object's continuous symmetry axis and a point on
     it (zeros outside the catalog, or for an object without one)."""
-    from tactojax.objects import CATALOG, get_object
+    from tactojax.objects import object_symmetry
 
-    if given is not None:
-        axis, centre = given
-    elif object_id in CATALOG:
-        axis, centre = get_object(object_id).symmetry.continuous_axis()
-    else:
-        axis, centre = np.zeros(3, np.float32), np.zeros(3, np.float32)
+    axis, centre = given if given is not None else object_symmetry(object_id).continuous_axis()
     return {"symmetry_axis": jnp.asarray(axis, jnp.float32), "symmetry_centre": jnp.asarray(centre, jnp.float32)}
 
 
@@ -278,8 +271,9 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     """The maps padded to one shape, so that everything that reads them compiles once for all
     (maps that already share one are returned as they are):
     invalid imprints up to the largest map's count, surface grids extended on their far sides with
-    unknown blocks up to the largest grid's and holding as many stored blocks as the most, symmetry lists with identity copies up to the
-    longest (a copy of the identity changes no distance up to symmetry).
+    unknown blocks up to the largest grid's and holding as many stored blocks as the most,
+    symmetry lists with identity copies up to the longest (a copy of the identity changes no
+    distance up to symmetry).
 
     Raises:
         ValueError: the maps differ in what cannot be padded (pixel pitch, grid pitch, feature size).

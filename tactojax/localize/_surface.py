@@ -184,9 +184,9 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
     normals = np.asarray(tactile_map.normals_object, np.float64)[valid]
     pitch = settings.pitch_mm
     if len(points) == 0:
-        if grid_like is not None:
-            empty = MapSurface.from_dense(np.full(grid_like.shape, np.nan), grid_like.origin, grid_like.pitch_mm)
-            return empty.padded_to(grid_like.block_index.shape, grid_like.blocks.shape[0])
+        if grid_like is not None:  # its shapes, every block pointing to the unknown one
+            return grid_like.replace(blocks=jnp.full_like(grid_like.blocks, jnp.nan),
+                                     block_index=jnp.zeros_like(grid_like.block_index))
         return MapSurface.from_dense(np.full((2, 2, 2), np.nan), np.zeros(3), pitch)
     if grid_like is None:
         origin = points.min(axis=0) - settings.margin_mm

@@ -8,6 +8,7 @@ from tactojax.objects._catalog import TABLE2_SHAPES as TABLE2_SHAPES
 from tactojax.objects._catalog import YCB_ATTRIBUTION as YCB_ATTRIBUTION
 from tactojax.objects._catalog import get_object as get_object
 from tactojax.objects._catalog import object_from_mesh as object_from_mesh
+from tactojax.objects._catalog import object_symmetry as object_symmetry
 from tactojax.objects._catalog import resolve_object as resolve_object
 from tactojax.objects._catalog import ycb_object as ycb_object
 from tactojax.objects._catalog import ycb_scans as ycb_scans
@@ -33,5 +34,5 @@ __all__ = [
     "CALIBRATION_SHAPES", "CATALOG", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
     "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "ObjectSymmetry", "Placed", "RayHits", "Solid",
     "Sphere", "SquareFrustum", "TactileObject", "Union", "get_object", "mount_mesh",
-    "object_from_mesh", "placed", "raycast", "resolve_object", "ycb_object", "ycb_scans",
+    "object_from_mesh", "object_symmetry", "placed", "raycast", "resolve_object", "ycb_object", "ycb_scans",
 ]

@@ -18,7 +18,7 @@ import numpy as np
 
 from tactojax.objects._mesh import MeshSolid, mount_mesh
 from tactojax.objects._object import TactileObject
-from tactojax.objects._symmetry import ObjectSymmetry
+from tactojax.objects._symmetry import NO_SYMMETRY, ObjectSymmetry
 from tactojax.objects._primitives import (
     Box, Cylinder, Difference, Frustum, Sphere, SquareFrustum, Union, placed,
 )
@@ -200,6 +200,12 @@ def get_object(name: str) -> TactileObject:
     if name not in CATALOG:
         raise ValueError(f"unknown object {name!r}; catalog objects: {', '.join(CATALOG)}")
     return CATALOG[name]()
+
+
+def object_symmetry(object_id: str) -> ObjectSymmetry:
+    """The symmetry group the catalog gives an object (:data:`NO_SYMMETRY` outside the catalog:
+    a map of a mesh or a scan is treated as asymmetric)."""
+    return get_object(object_id).symmetry if object_id in CATALOG else NO_SYMMETRY
 
 
 def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = None,

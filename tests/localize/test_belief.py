@@ -63,6 +63,18 @@ def test_shallow_stored_points_make_no_surface(bumps_map, bumps_view, synthetic)
     assert np.all(np.asarray(known)) and np.median(np.abs(np.asarray(distance))) < 0.02
 
 
+def test_a_surface_without_imprints_keeps_the_full_maps_shapes(bumps_map, bumps_view, synthetic):
+    """Leave-one-out builds each fold's surface on the full map's grid: with some imprints left
+    out, or all of them, its arrays keep the full map's shapes (one compilation), and with all
+    of them left out it knows nothing."""
+    full = bumps_view.surface
+    for left_out in (np.arange(len(bumps_view)) < 3, np.ones(len(bumps_view), bool)):
+        fold = build_map_surface(bumps_map, synthetic.surface, exclude=left_out, grid_like=full)
+        assert fold.blocks.shape == full.blocks.shape and fold.block_index.shape == full.block_index.shape
+    _, known = fold.signed_distance(jnp.asarray(np.asarray(bumps_map.points_object)[0, :10], jnp.float32))
+    assert not np.any(np.asarray(known)) and np.all(np.isnan(np.asarray(fold.distance)))
+
+
 def _trilinear_reference(dense, origin, pitch, points):
     """NumPy: trilinear interpolation over the known (finite) corners of each point's cell, weights
     renormalised; unknown (0) outside the grid or with no known corner."""
