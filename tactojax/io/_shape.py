@@ -111,6 +111,8 @@ def _model_from_payload(payload: dict, path) -> ShapeModel:
             params = {k: np.asarray(v, np.float32) for k, v in params.items()}
     except (KeyError, ValueError, TypeError) as error:
         raise CorruptCheckpointError(f"{path}: malformed shape model ({error})") from None
+    # On the device once: a model of NumPy arrays would be copied to an accelerator at every call.
+    params, background = jax.device_put((params, background))
     return ShapeModel(params=params, background=background, preset=preset,
                       mm_per_px=float(payload["mm_per_px"]), sensor=str(payload["sensor"]),
                       color_gain=color_gain)

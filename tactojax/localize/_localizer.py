@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+from jax.sharding import SingleDeviceSharding
 
 from tactojax.features import Encoder
 from tactojax.features import encode_image
@@ -275,7 +276,8 @@ class Localizer:
                                           for m, c in zip(maps, calibrations)]))
         start = time.perf_counter()
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
-        self._model = (model, jax.jit(coordinate_bias)(model))
+        # On the device once (a model of NumPy arrays would be copied to an accelerator every frame).
+        self._model = jax.device_put((model, jax.jit(coordinate_bias)(model)))
         self._observe = jax.jit(lambda model, bias, image: observe(model, image, bias)[1:]).lower(
             *self._model, image).compile()
         self._encoder = encoder
@@ -295,8 +297,12 @@ class Localizer:
                                             settings).compile()
         self._summarise = belief_digest.lower(self._empty[0], live.modes).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
-        self._kinematics = jax.jit(frame_kinematics).lower(pose.wxyz_xyz, scalar, pose.wxyz_xyz,
-                                                           pose.wxyz_xyz).compile()
+        # A frame's pose arithmetic runs on the host's CPU whatever the default device: on an
+        # accelerator its launch and read-back would cost more than the arithmetic (0.77 against
+        # 0.14 ms per frame on an H200 machine).
+        host = SingleDeviceSharding(jax.devices("cpu")[0])
+        self._kinematics = jax.jit(frame_kinematics, in_shardings=host, out_shardings=host).lower(
+            pose.wxyz_xyz, scalar, pose.wxyz_xyz, pose.wxyz_xyz).compile()
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self._worker: ThreadPoolExecutor | None = None
