@@ -52,6 +52,8 @@ def test_checkpoint_round_trip_and_corruption(trained, tmp_path):
     loaded = load_shape_model(path)
     assert loaded.preset == "tiny" and loaded.mm_per_px == state.model.mm_per_px
     assert loaded.color_gain == state.model.color_gain == TrainConfig().color_gain
+    # On the device once: a model of NumPy arrays is copied to an accelerator at every call.
+    assert all(isinstance(leaf, jax.Array) for leaf in jax.tree.leaves((loaded.params, loaded.background)))
     images = test.images_float(slice(0, 2))
     for a, b in zip(predict_batch(state.model, images), predict_batch(loaded, images)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
