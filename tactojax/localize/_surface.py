@@ -130,6 +130,7 @@ class MapSurface:
         shape = np.array(self.shape)
         grid = np.array(self.block_index.shape)
         side = BLOCK + 1
+        in_block = np.array([side * side, side, 1], np.int32)  # a cell's step along each axis of a stored block
         cell = (p_object - self.origin) / self.pitch_mm
         inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)
         last = shape - (2 if interpolate else 1)  # the cell whose corners are read, at most
@@ -137,9 +138,9 @@ class MapSurface:
         # low >= 0 and BLOCK a power of two: shifts and masks (integer division is slow on a CPU).
         block, within = low >> _BLOCK_BITS, low & (BLOCK - 1)
         slot = self.block_index.reshape(-1)[block @ np.array([grid[1] * grid[2], grid[2], 1], np.int32)]
-        base = slot * side**3 + within @ np.array([side * side, side, 1], np.int32)  # the cell, in its block
+        base = slot * side**3 + within @ in_block  # the cell, in its block
         corners = np.array(list(np.ndindex(2, 2, 2))) if interpolate else np.zeros((1, 3), int)
-        stored = self.blocks.reshape(-1)[base[..., None] + corners @ np.array([side * side, side, 1], np.int32)]
+        stored = self.blocks.reshape(-1)[base[..., None] + corners @ in_block]
         finite = jnp.isfinite(stored)
         values = jnp.where(finite, stored, 0.0)
         if not interpolate:
