@@ -35,7 +35,6 @@ from tactojax.cli import main as cli_main
 from tactojax.features import apply_encoder, encode_images
 from tactojax.io import load_tactile_map, open_dataset, resolve_encoder, resolve_shape_model
 from tactojax.localize.evaluation import evaluate_localization
-from tactojax.objects import NO_SYMMETRY, object_symmetry
 
 try:  # run as ``python benchmarks/features.py`` or as a module
     from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
@@ -73,11 +72,11 @@ def encoder_speed(encoders: dict, image: np.ndarray, *, rounds: int, calls: int)
 
 
 def leave_one_out(tactile_map, queries: np.ndarray) -> dict:
-    """CTI-ICP-5 median RMSE over ``queries`` (and symmetry-aware for symmetric catalog objects)."""
+    """CTI-ICP-5 median RMSE over ``queries`` (and symmetry-aware for symmetric objects)."""
     result = evaluate_localization(jax.random.key(0), tactile_map, ["cti-icp-5"], queries=queries,
-                                   progress=True)["cti-icp-5"]  # the catalog's symmetries by object id
+                                   progress=True)["cti-icp-5"]  # the map's symmetries
     summary = result.summary()
-    symmetric = object_symmetry(tactile_map.object_id) != NO_SYMMETRY
+    symmetric = tactile_map.object_symmetry.symmetric
     return {"median_mm": summary["rmse_mm"]["median"],
             "symmetric_median_mm": summary["symmetric_rmse_mm"]["median"] if symmetric else None,
             "within_2mm": summary["within_mm"]["2"]}

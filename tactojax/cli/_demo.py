@@ -195,7 +195,7 @@ def _localization(args, maps, out: Path) -> dict:
         results = evaluate_localization(jax.random.key(args.seed), tactile_map, methods,
                                         queries=valid, progress=True)
         payload[tactile_map.object_id] = {m: r.summary() for m, r in results.items()}
-        title, panel = histogram_panel(tactile_map.object_id, results)
+        title, panel = histogram_panel(tactile_map, results)
         histograms[title] = panel
         rows.append([tactile_map.object_id, *(f"{np.median(r.rmse):.1f} ({np.median(r.symmetric_rmse):.1f})"
                                               for r in results.values())])

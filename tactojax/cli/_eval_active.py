@@ -85,7 +85,7 @@ def run(args) -> int:
         result = run_active_episodes(jax.random.key(args.seed), view, obj, spec, observe, episodes=args.episodes,
                                      max_grasps=args.max_grasps, policies=policies, candidates=args.candidates,
                                      turns_deg=args.turns_deg, settings=settings, progress=not args.no_progress)
-        symmetric = is_symmetric(tactile_map.object_id)
+        symmetric = is_symmetric(tactile_map)
         summaries, stops = [], {}
         for policy in policies:
             error = result.symmetric_rmse[policy] if symmetric else result.rmse[policy]

@@ -72,7 +72,7 @@ def run(args) -> int:
             valid = np.sort(np.random.default_rng(args.seed).choice(valid, args.queries, replace=False))
         results = evaluate_localization(key, tactile_map, methods, calibration=fit,
                                         queries=valid, progress=True)
-        symmetric = is_symmetric(tactile_map.object_id)
+        symmetric = is_symmetric(tactile_map)
         summaries = {}
         for name, r in results.items():
             s = summaries[name] = r.summary()
@@ -90,7 +90,7 @@ def run(args) -> int:
                          f"{100 * s['symmetric_within_2mm']:.0f} %" if symmetric else "-",
                          s.get("mean_probability_within_2mm", "-"),
                          s["calibration"]["max_gap"] if "calibration" in s else "-"])
-        title, panel = histogram_panel(tactile_map.object_id, results)
+        title, panel = histogram_panel(tactile_map, results)
         histograms[title] = panel
         payload["objects"][tactile_map.object_id] = {"imprints": len(tactile_map), "queries": int(len(valid)),
                                                      "symmetric": symmetric, "calibrated": fit is not None,

@@ -33,7 +33,7 @@ def run_new_grasps(args) -> int:
             import jax
 
             episodes = jax.tree.map(lambda x: x[:, :args.touches], episodes)
-        symmetric = is_symmetric(tactile_map.object_id)
+        symmetric = is_symmetric(tactile_map)
         fit = stored_calibration(path, args.encoder) if "belief" in methods else None
         view = LocalizationMap.from_tactile_map(tactile_map, calibration=fit)
         results = evaluate_new_grasps(view, episodes, methods, fingers=args.fingers, progress=True)

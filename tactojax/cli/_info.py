@@ -62,11 +62,27 @@ def run(args) -> int:
               f"({', '.join(c.get('file', '?') for c in lost)})")
     groups = summary.get("groups") or {}
     if groups:
+        from tactojax.io import dataset_symmetry
+
         print()
-        print(format_table(["object", "imprints"], [[name, count] for name, count in sorted(groups.items())]))
+        symmetries = {name: dataset_symmetry(metadata, name) for name in groups}
+        print(format_table(["object", "imprints", "symmetry"],
+                           [[name, count, "-" if symmetries[name] is None else symmetries[name].describe()]
+                            for name, count in sorted(groups.items())]))
     if args.json:
         write_json(args.json, summary)
     return 0
+
+
+def _map_symmetry(path) -> str:
+    """The map's symmetry group in words, and where it comes from."""
+    from tactojax.io import tactile_map_metadata
+    from tactojax.objects import ObjectSymmetry, object_symmetry
+
+    header = tactile_map_metadata(path)
+    if "symmetry" in header:
+        return f"{ObjectSymmetry.from_json(header['symmetry']).describe()} (recorded when mapped)"
+    return f"{object_symmetry(header['object_id']).describe()} (the catalog's, by object id; none recorded)"
 
 
 def _map_bytes(args) -> int:
@@ -80,6 +96,7 @@ def _map_bytes(args) -> int:
     print(f"map       {args.dataset}: {summary['object_id']}, {summary['imprints']} imprints, format version "
           f"{summary['version']}")
     print(f"memory    {summary['loaded_bytes'] / count:,.0f} bytes per imprint as loaded (without images)")
+    print(f"symmetry  {_map_symmetry(args.dataset)}")
     print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:
         write_json(args.json, summary)

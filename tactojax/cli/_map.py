@@ -64,7 +64,7 @@ def run(args) -> int:
     # The retrieval features, once, from the images (a compact map keeps no images).
     encoder_name = encoder_label(args.encoder or DEFAULT_ENCODER)
     features = encode_images(resolve_encoder(encoder_name), tactile_map.stored_images(), progress=not args.no_progress)
-    tactile_map = tactile_map.with_features(features)
+    tactile_map = tactile_map.with_features(features).replace(symmetry=grasps["symmetry"])
     if not args.keep_images:
         tactile_map = tactile_map.replace(images=None)
     metadata = {"data": args.data, "model": args.model, "kinematic_noise": args.kinematic_noise,

@@ -131,6 +131,7 @@ def _build_object(name: str, out: Path, model, encoder, encoder_name: str, args)
                                     grasps["object_id"], T_world_object=grasps["T_world_object"],
                                     points_per_imprint=args.points, key=jax.random.key(args.seed), progress=progress)
     tactile_map = tactile_map.with_features(encode_images(encoder, tactile_map.images, progress=progress))
+    tactile_map = tactile_map.replace(symmetry=obj.symmetry)
     if not args.keep_images:  # the features are stored: localization needs the images no more
         tactile_map = tactile_map.replace(images=None)
     path = save_tactile_map(out / f"{slug}.npz", tactile_map, metadata={

@@ -88,20 +88,19 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
     return shared_shapes(views), calibrated
 
 
-def is_symmetric(object_id: str) -> bool:
-    """Whether the catalog gives the object a symmetry beyond the identity (a continuous axis,
-    n-fold turns or flips; the maps' views take it from the catalog by object id)."""
-    from tactojax.objects import NO_SYMMETRY, object_symmetry
-
-    return object_symmetry(object_id) != NO_SYMMETRY
+def is_symmetric(tactile_map) -> bool:
+    """Whether the map's object has a symmetry beyond the identity (a continuous axis, n-fold
+    turns or flips: :attr:`~tactojax.mapping.TactileMap.object_symmetry`)."""
+    return tactile_map.object_symmetry.symmetric
 
 
-def histogram_panel(object_id: str, results: dict) -> tuple[str, dict]:
+def histogram_panel(tactile_map, results: dict) -> tuple[str, dict]:
     """One panel of the localization histogram: ``(title, {method: per-query RMSE, mm})``.
 
     A symmetric object's plain RMSE mostly measures which symmetric copy was picked, so its
     panel shows the symmetry-aware RMSE, and says so.
     """
-    if is_symmetric(object_id):
+    object_id = tactile_map.object_id
+    if is_symmetric(tactile_map):
         return f"{object_id} (symmetry-aware)", {name: r.symmetric_rmse for name, r in results.items()}
     return object_id, {name: r.rmse for name, r in results.items()}

@@ -26,6 +26,7 @@ from tactojax.io._catalog import write_catalog as write_catalog
 from tactojax.io._map import MAP_VERSION as MAP_VERSION
 from tactojax.io._map import CorruptMapError as CorruptMapError
 from tactojax.io._map import compact_tactile_map as compact_tactile_map
+from tactojax.io._map import dataset_symmetry as dataset_symmetry
 from tactojax.io._map import export_ply as export_ply
 from tactojax.io._map import load_localization_map as load_localization_map
 from tactojax.io._map import load_tactile_map as load_tactile_map
@@ -107,6 +108,7 @@ __all__ = [
     "CorruptTorchCheckpointError",
     "Dataset",
     "dataset_summary",
+    "dataset_symmetry",
     "DatasetLockedError",
     "DatasetRepair",
     "DatasetWriter",

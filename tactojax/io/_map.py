@@ -2,7 +2,8 @@
 
 Map format (compressed ``.npz``, read with ``allow_pickle=False``, written atomically): a zip of numpy
 arrays plus ``header``, a JSON string: ``{"format": "tactojax-tactile-map", "version": 2,
-"object_id", "mm_per_px", "sensor", "metadata": {...}}``. Version 2 (compact) arrays, one per stored
+"object_id", "mm_per_px", "sensor", "metadata": {...}}``, and ``"symmetry"`` (the object's
+symmetry group, :meth:`~tactojax.objects.ObjectSymmetry.to_json`) when the map recorded one. Version 2 (compact) arrays, one per stored
 :class:`~tactojax.mapping.TactileMap` field: ``packed_heightmaps`` (K, H, W) float16 mm with the
 contact mask in the sign bit; ``point_pixels`` (K, P) uint16 (int32 past 65536 pixels), the
 contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32
@@ -31,6 +32,8 @@ import numpy as np
 from tactojax.storage._atomic import atomic_open
 from tactojax.storage._dataset import open_dataset
 from tactojax.mapping import TactileMap, pack_heightmaps, points_to_pixels, stitched_point_cloud
+from tactojax.objects import ObjectSymmetry
+from tactojax.simulate import symmetry_key
 
 MAP_FORMAT = "tactojax-tactile-map"
 MAP_VERSION = 2
@@ -62,6 +65,8 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     header = {"format": MAP_FORMAT, "version": MAP_VERSION, "object_id": tactile_map.object_id,
               "mm_per_px": tactile_map.mm_per_px, "sensor": tactile_map.sensor,
               "metadata": metadata or {}}
+    if tactile_map.symmetry is not None:
+        header["symmetry"] = tactile_map.symmetry.to_json()
     arrays = {name: np.asarray(getattr(tactile_map, name)) for name in _DTYPES[MAP_VERSION]
               if name != "T_object_sensor"}
     arrays["T_object_sensor"] = np.asarray(tactile_map.T_object_sensor.wxyz_xyz, np.float32)
@@ -152,7 +157,8 @@ def load_tactile_map(path, *, images: bool = False) -> TactileMap:
                       images=None if stored_images is None else jnp.asarray(stored_images),
                       T_object_sensor=jaxlie.SE3(jnp.asarray(poses)),
                       object_id=str(header["object_id"]), mm_per_px=float(header["mm_per_px"]),
-                      sensor=str(header.get("sensor", "")))
+                      sensor=str(header.get("sensor", "")),
+                      symmetry=ObjectSymmetry.from_json(header["symmetry"]) if "symmetry" in header else None)
 
 
 def stored_features_encoder(header: dict) -> str | None:
@@ -339,7 +345,8 @@ def read_grasps(path, *, object_id: str | None = None) -> dict:
         other fields such as a simulator's ground truth with ``open_dataset(path).read``):
         ``{"object_id", "index" (K,), "images" (K, H, W, 3) uint8, "T_world_gripper" SE3 (K,), "openings" (K,)
         mm, "T_world_object" SE3 (K,) or None (a recording without it: object fixed in the
-        world), "mm_per_px", "sensor"}``.
+        world), "mm_per_px", "sensor", "symmetry"}``: the object's :class:`~tactojax.objects.ObjectSymmetry`
+        as the simulator recorded it, or None (a recording, or a dataset written before).
     """
     dataset = open_dataset(path)
     needed = ["image", "T_world_gripper", "opening_mm", "object_id"]
@@ -374,4 +381,11 @@ def read_grasps(path, *, object_id: str | None = None) -> dict:
         "T_world_object": (jaxlie.SE3(jnp.asarray(data["T_world_object"], jnp.float32))
                            if "T_world_object" in data else None),
         "mm_per_px": float(sensor["mm_per_px"]), "sensor": sensor.get("name", ""),
+        "symmetry": dataset_symmetry(dataset.metadata, object_id),
     }
+
+
+def dataset_symmetry(metadata: dict, object_id: str) -> ObjectSymmetry | None:
+    """The symmetry group a dataset's metadata records for ``object_id``, or None."""
+    stored = metadata.get(symmetry_key(object_id))
+    return None if stored is None else ObjectSymmetry.from_json(stored)

@@ -1,7 +1,8 @@
 """Which grasp next: the candidate whose predicted touch most raises P(within 2 mm) (active touch).
 
 Beyond the paper (issue 28; Hebert et al., ICRA 2013, "the next best touch"). For every
-candidate grasp and each of the belief's ``hypotheses`` most likely poses *h*, the grasp's
+candidate grasp and each of the belief's ``hypotheses`` most likely modes *h* (symmetric copies
+and poses within 2 mm of a likelier one merged: they predict the same touch), the grasp's
 touch is predicted from the map alone (:func:`~tactojax.localize.active.predict_grasp`). Were *h* the
 truth, that touch would reweigh every hypothesis *h'* by the belief's own likelihood (the
 geometric likelihood of its contact and no-contact points against the map's surface, at the
@@ -14,8 +15,9 @@ belief-weighted mean over *h* of the objective after that reweighing, less its v
   hypotheses;
 - ``"entropy"``: minus the entropy of the modes' masses (symmetric copies are one mode).
 
-A grasp predicted to miss under *h* teaches nothing there (the belief ignores a touch without
-contact). Everything has fixed shapes: one compilation per map, settings and candidate count,
+A grasp predicted to miss under *h* brings no touch there, but its failure reweighs every *h'*
+as the belief will (:func:`observe_failed_grasp`: it rules out the poses at which the grasp
+would close). Everything has fixed shapes: one compilation per map, settings and candidate count,
 vmapped over candidates (:func:`next_grasp`).
 """
 
@@ -47,7 +49,7 @@ class ActiveSettings:
     """How grasps are proposed and ranked (static)."""
 
     hypotheses: int = 8
-    """The belief's most likely hypotheses the expectation runs over."""
+    """The belief's most likely modes the expectation runs over (:func:`leading_hypotheses`)."""
     fingers: int = 2
     """Fingers with a gel (2: both jaws)."""
     objective: str = "within"
@@ -113,12 +115,16 @@ def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array,
 
 
 def leading_hypotheses(belief: PoseBelief, count: int) -> tuple[jaxlie.SE3, Float[Array, "M"], Float[Array, "M M"]]:
-    """The ``count`` most likely hypotheses as object poses in the world (mm), their
-    renormalised probabilities, and their (M, M) symmetry-aware distances (the touches' cloud
-    RMSE, mm)."""
-    log_weights, index = jax.lax.top_k(belief.log_weights, count)
-    weights = jnp.where(jnp.isfinite(log_weights), jnp.exp(log_weights - jnp.max(log_weights)), 0.0)
-    weights = weights / jnp.maximum(jnp.sum(weights), 1e-30)
+    """The belief's ``count`` most likely modes (:meth:`~tactojax.localize.PoseBelief.modes`:
+    symmetric copies, and poses within 2 mm of a likelier one, merged into it), each at its most
+    likely pose, as object poses in the world (mm); their renormalised probabilities; and their
+    (M, M) symmetry-aware distances (the touches' cloud RMSE, mm).
+
+    Copies of one pose predict the same touch: counted apart they would spend the expectation's
+    few slots on one pose of a symmetric object."""
+    _, mass = belief.modes()
+    mass, index = jax.lax.top_k(mass, count)
+    weights = mass / jnp.maximum(jnp.sum(mass), 1e-30)
     T_object_reference = take(belief.T_object_reference, index)
     T_world_object = belief.T_world_reference @ T_object_reference.inverse()
     probe = belief.replace(T_object_reference=T_object_reference)
@@ -169,7 +175,11 @@ def grasp_gain(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
     posterior = (after / before) * log_prior[None, :] + after * calibration.temperature * scores
     posterior = jnp.where(weights[None, :] > 0, posterior, -jnp.inf)
     posterior = jax.nn.softmax(posterior, axis=1)
-    posterior = jnp.where(predictions.valid[:, None], posterior, weights[None, :])  # a miss teaches nothing
+    # Were h the truth and the grasp missed there, the failure itself reweighs every h'
+    # (:func:`observe_failed_grasp`): it rules out the poses at which the grasp would close.
+    failed = weights * jnp.where(predictions.valid, settings.predicted_close_misses, 1.0)
+    failed = failed / jnp.maximum(jnp.sum(failed), 1e-30)
+    posterior = jnp.where(predictions.valid[:, None], posterior, failed[None, :])
     value = jax.vmap(lambda w: _objective(w, distance, mode, settings))(posterior)
     gain = jnp.sum(weights * value) - _objective(weights, distance, mode, settings)
     closes = jnp.sum(jnp.where(predictions.valid, weights, 0.0))
@@ -223,11 +233,12 @@ def next_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
         settings: hypotheses, objective, prediction (static).
 
     Returns:
-        the :class:`GraspRanking`: the candidates that close at the largest belief mass come
-        first (by gain), one that closes under no hypothesis last.
+        the :class:`GraspRanking`: the candidates that close at the largest belief mass (over
+        the leading modes) come first, by gain among themselves; one that closes under no
+        mode last.
     """
     gain, closes, area = jax.vmap(lambda T: grasp_gain(view, grid, belief, T, settings))(T_world_gripper)
-    # A miss is a spent grasp, and the truth may lie outside the leading hypotheses: the
+    # A miss is a spent grasp, and the truth may lie outside the leading modes: the
     # candidates that close at the most of them come first, by gain among themselves.
     surest = closes >= jnp.max(closes) - 1e-6
     rank = jnp.where(closes > 0, gain + jnp.where(surest, 10.0, 0.0), -jnp.inf)

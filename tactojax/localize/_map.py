@@ -13,6 +13,7 @@ from jaxtyping import Array, Bool, Float, Float16, Int
 
 from tactojax.localize._surface import MapSurface, SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap, unpack_heightmaps
+from tactojax.objects import ObjectSymmetry
 
 MAP_POINTS = 64
 """Contact points per imprint that a :class:`LocalizationMap` keeps (registration and tracking)."""
@@ -113,12 +114,12 @@ class LocalizationMap:
             calibration: the belief's scales (:func:`~tactojax.localize.fit_calibration`, stored
                 in the map file by ``tactojax calibrate-belief``; default: uncalibrated).
             symmetries: (S,) the object's symmetric copies modulo turns about its continuous
-                axis (default: the catalog's for a catalog object, else none but the identity).
+                axis (default: the map's :attr:`~tactojax.mapping.TactileMap.object_symmetry`).
                 A sampled continuous group (:meth:`~tactojax.objects.ObjectSymmetry.transforms`)
                 gives the same distances, more slowly.
             continuous_symmetry: ``(axis, centre)``, the unit axis of the object's continuous
                 rotational symmetry and a point on it (object frame, mm); zeros for none
-                (default: the catalog's for a catalog object, else none).
+                (default: the map's, as ``symmetries``).
             surface: how the surface grid is built.
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
@@ -137,8 +138,8 @@ class LocalizationMap:
             features=features, imprint_valid=tactile_map.imprint_valid,
             points=points, normals=normals, points_valid=points_valid, centres=centres,
             surface=build_map_surface(tactile_map, surface),
-            symmetries=catalog_symmetries(tactile_map.object_id) if symmetries is None else symmetries,
-            **_continuous_symmetry(tactile_map.object_id, continuous_symmetry),
+            symmetries=tactile_map.object_symmetry.copies() if symmetries is None else symmetries,
+            **_continuous_symmetry(tactile_map.object_symmetry, continuous_symmetry),
             calibration=BeliefCalibration.default() if calibration is None else calibration,
             mm_per_px=float(tactile_map.mm_per_px))
         return jax.tree.map(_strong, view)
@@ -250,20 +251,10 @@ def map_touch(view: LocalizationMap, index: int | Int[Array, ""]) -> Touch:
     return Touch(heightmap=heightmap, mask=mask, feature=view.features[index], opening=view.openings[index])
 
 
-def catalog_symmetries(object_id: str) -> jaxlie.SE3:
-    """(S,) the catalog object's symmetric copies modulo its continuous turns
-    (:meth:`~tactojax.objects.ObjectSymmetry.copies`); the identity alone outside the catalog."""
-    from tactojax.objects import object_symmetry
-
-    return object_symmetry(object_id).copies()
-
-
-def _continuous_symmetry(object_id: str, given) -> dict[str, jax.Array]:
-    """``given`` (axis, centre), else the catalog object's continuous symmetry axis and a point on
-    it (zeros outside the catalog, or for an object without one)."""
-    from tactojax.objects import object_symmetry
-
-    axis, centre = given if given is not None else object_symmetry(object_id).continuous_axis()
+def _continuous_symmetry(symmetry: ObjectSymmetry, given) -> dict[str, jax.Array]:
+    """``given`` (axis, centre), else the group's continuous symmetry axis and a point on it
+    (zeros for a group without one)."""
+    axis, centre = given if given is not None else symmetry.continuous_axis()
     return {"symmetry_axis": jnp.asarray(axis, jnp.float32), "symmetry_centre": jnp.asarray(centre, jnp.float32)}
 
 

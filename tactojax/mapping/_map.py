@@ -9,6 +9,7 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, Float16, Int, UInt8
 
 from tactojax.mapping._packing import pixel_points, unpack_heightmaps
+from tactojax.objects import ObjectSymmetry, object_symmetry
 
 
 _decode_points = jax.jit(jax.vmap(pixel_points, in_axes=(0, 0, None)), static_argnums=2)
@@ -56,9 +57,19 @@ class TactileMap:
     """Pixel pitch of the images and heightmaps, mm."""
     sensor: str = struct.field(pytree_node=False, default="")
     """Name of the sensor that recorded the imprints."""
+    symmetry: ObjectSymmetry | None = struct.field(pytree_node=False, default=None)
+    """The object's symmetry group as recorded when it was mapped (declared by the catalog,
+    measured from a mesh: :func:`~tactojax.objects.detect_symmetry`); None for a map that
+    recorded none (then the catalog's, by object id: :attr:`object_symmetry`)."""
 
     def __len__(self) -> int:
         return int(self.openings.shape[0])
+
+    @property
+    def object_symmetry(self) -> ObjectSymmetry:
+        """The object's symmetry group: the recorded one, else the catalog's for a catalog
+        object (maps written before symmetries were recorded), else none."""
+        return self.symmetry if self.symmetry is not None else object_symmetry(self.object_id)
 
     @property
     def image_shape(self) -> tuple[int, int]:

@@ -16,7 +16,10 @@ from tactojax.objects._mesh import MeshSolid as MeshSolid
 from tactojax.objects._mesh import mount_mesh as mount_mesh
 from tactojax.objects._object import TactileObject as TactileObject
 from tactojax.objects._symmetry import NO_SYMMETRY as NO_SYMMETRY
+from tactojax.objects._symmetry import SYMMETRY_TOLERANCE_MM as SYMMETRY_TOLERANCE_MM
 from tactojax.objects._symmetry import ObjectSymmetry as ObjectSymmetry
+from tactojax.objects._symmetry import detect_symmetry as detect_symmetry
+from tactojax.objects._symmetry import symmetry_residual as symmetry_residual
 from tactojax.objects._primitives import Box as Box
 from tactojax.objects._primitives import Cylinder as Cylinder
 from tactojax.objects._primitives import Difference as Difference
@@ -31,8 +34,9 @@ from tactojax.objects._raycast import RayHits as RayHits
 from tactojax.objects._raycast import raycast as raycast
 
 __all__ = [
-    "CALIBRATION_SHAPES", "CATALOG", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
+    "CALIBRATION_SHAPES", "CATALOG", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "SYMMETRY_TOLERANCE_MM", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
     "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "ObjectSymmetry", "Placed", "RayHits", "Solid",
-    "Sphere", "SquareFrustum", "TactileObject", "Union", "get_object", "mount_mesh",
-    "object_from_mesh", "object_symmetry", "placed", "raycast", "resolve_object", "ycb_object", "ycb_scans",
+    "Sphere", "SquareFrustum", "TactileObject", "Union", "detect_symmetry", "get_object", "mount_mesh",
+    "object_from_mesh", "object_symmetry", "placed", "raycast", "resolve_object", "symmetry_residual", "ycb_object",
+    "ycb_scans",
 ]

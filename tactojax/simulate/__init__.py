@@ -3,6 +3,7 @@
 from tactojax.simulate._dataset import dataset_metadata as dataset_metadata
 from tactojax.simulate._dataset import sensor_metadata as sensor_metadata
 from tactojax.simulate._dataset import simulate_to_dataset as simulate_to_dataset
+from tactojax.simulate._dataset import symmetry_key as symmetry_key
 from tactojax.simulate._grasp import GraspConfig as GraspConfig
 from tactojax.simulate._grasp import GraspResult as GraspResult
 from tactojax.simulate._grasp import simulate_grasps as simulate_grasps
@@ -32,6 +33,6 @@ __all__ = [
     "CalibrationProtocol", "GraspCandidates", "GraspConfig", "GraspPlan", "GraspResult", "GraspsProtocol",
     "MappingProtocol", "SlipProtocol", "SlipWalk", "TouchPlan", "calibration_plan", "cast_rays", "dataset_metadata",
     "grasps_plan", "mapping_grid_for", "mapping_plan", "pad_rays", "plan_protocol", "protocol_fields",
-    "sensor_metadata", "simulate_grasps", "simulate_protocol", "simulate_to_dataset", "simulate_two_sensor_grasps",
+    "sensor_metadata", "simulate_grasps", "simulate_protocol", "simulate_to_dataset", "simulate_two_sensor_grasps", "symmetry_key",
     "slip_offsets", "slipped_grippers", "touch",
 ]

@@ -45,6 +45,11 @@ def dataset_metadata(spec: SensorSpec, protocol, config: GraspConfig) -> dict:
     }
 
 
+def symmetry_key(object_id: str) -> str:
+    """The dataset metadata key of an object's symmetry group (:meth:`~tactojax.objects.ObjectSymmetry.to_json`)."""
+    return f"symmetry:{object_id}"
+
+
 def simulate_to_dataset(
     path: str | Path,
     key: jax.Array,
@@ -66,7 +71,9 @@ def simulate_to_dataset(
     Returns:
         The number of imprints written (grasps that missed are skipped).
     """
-    metadata = dataset_metadata(spec, protocol, config)
+    # The object's symmetry travels with its touches (a map of a mesh records it: maps and
+    # evaluations then need neither the catalog nor the mesh).
+    metadata = {**dataset_metadata(spec, protocol, config), symmetry_key(obj.name): obj.symmetry.to_json()}
     written = 0
     with DatasetWriter(path, metadata=metadata, chunk_size=chunk_size) as writer:
         numbered = {GraspsProtocol: "episode", SlipProtocol: "sequence"}.get(type(protocol))

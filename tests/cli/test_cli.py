@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from tactojax.cli import main
-from tactojax.io import load_imprints, open_dataset
+from tactojax.io import load_imprints, open_dataset, read_grasps
 
 SMALL = ["--scale", "0.25", "--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0", "90", "--no-progress"]
 
@@ -78,6 +78,10 @@ def test_mesh_by_path_is_simulated(tmp_path):
     assert main(["simulate", path, "--mesh-units", "m", "--out", str(out), *SMALL]) == 0
     ids = open_dataset(out).read(["object_id"])["object_id"]
     assert len(ids) > 0 and set(ids) == {"block"}
+    # A box's symmetry, measured from the mesh, is recorded with its touches: the half turns
+    # about its three axes (mounted: x along the 60 mm side).
+    symmetry = read_grasps(out)["symmetry"]
+    assert symmetry.axis == "x" and symmetry.fold == 2 and len(symmetry.flips) == 1
 
 
 def test_a_mesh_with_a_hole_is_repaired_and_says_so(tmp_path, capsys):

@@ -152,10 +152,18 @@ def test_histogram_panel_shows_the_symmetry_aware_error_of_symmetric_objects():
     from types import SimpleNamespace
 
     from tactojax.cli._maps import histogram_panel
+    from tactojax.objects import NO_SYMMETRY, ObjectSymmetry
+
+    def tactile_map(object_id, symmetry):  # what the panel reads of a map
+        return SimpleNamespace(object_id=object_id, object_symmetry=symmetry)
 
     results = {"cti": SimpleNamespace(rmse=np.array([80.0]), symmetric_rmse=np.array([0.1]))}
-    title, panel = histogram_panel("gum_box", results)
+    title, panel = histogram_panel(tactile_map("gum_box", ObjectSymmetry(axis="z", fold=2)), results)
     assert title == "gum_box (symmetry-aware)" and panel["cti"][0] == 0.1
-    title, panel = histogram_panel("scissors", results)  # identity only
+    title, panel = histogram_panel(tactile_map("scissors", NO_SYMMETRY), results)  # identity only
     assert title == "scissors" and panel["cti"][0] == 80.0
-    assert histogram_panel("my_part", results) == ("my_part", {"cti": results["cti"].rmse})
+    # A group measured from a mesh (not exact) counts as well.
+    title, _ = histogram_panel(tactile_map("my_part", ObjectSymmetry(axis="x", exact=False)), results)
+    assert title == "my_part (symmetry-aware)"
+    assert histogram_panel(tactile_map("my_part", ObjectSymmetry(exact=False)), results) == (
+        "my_part", {"cti": results["cti"].rmse})

@@ -6,6 +6,7 @@ import trimesh
 
 from tactojax.cli import main
 from tactojax.io import encoder_label, load_tactile_map, resolve_encoder, save_shape_model, tactile_map_metadata
+from tactojax.objects import get_object
 
 
 def test_map_fit_and_show(mapping_dataset, lookup_model, tiny_encoder_path, tmp_path, capsys):
@@ -17,6 +18,8 @@ def test_map_fit_and_show(mapping_dataset, lookup_model, tiny_encoder_path, tmp_
                  "--no-progress"]) == 0
     tactile_map = load_tactile_map(map_path)
     assert tactile_map.object_id == "cylinder" and tactile_map.points.shape[1] == 256
+    # The object's symmetry came with the simulated data and is stored with the map.
+    assert tactile_map.symmetry == get_object("cylinder").symmetry
     metadata = tactile_map_metadata(map_path)["metadata"]
     assert metadata["model"] == str(model_path)
     # The features are the given encoder's, and the map says so (the commands encode new touches with it).

@@ -11,7 +11,9 @@ import pytest
 
 from tactojax.io import (MAP_VERSION, compact_tactile_map, load_tactile_map, save_tactile_map, tactile_map_bytes,
                          tactile_map_metadata, update_tactile_map_metadata)
+from tactojax.localize import LocalizationMap
 from tactojax.mapping import TactileMap, pack_heightmaps, pixel_index_dtype, sample_contact_pixels
+from tactojax.objects import NO_SYMMETRY, ObjectSymmetry
 
 HEIGHT_PX, WIDTH_PX, MM_PER_PX, POINTS = 120, 160, 0.2, 1024
 FLOAT16_RELATIVE = 2.0**-11  # float16 rounding, relative to the value
@@ -88,6 +90,19 @@ def test_compact_round_trip_within_the_float16_bound(tiny_map, tmp_path):
     np.testing.assert_array_equal(np.asarray(load_tactile_map(path, images=True).images), np.asarray(tactile_map.images))
     with pytest.raises(ValueError, match="stores no images"):
         loaded.stored_images()
+
+
+def test_the_recorded_symmetry_round_trips_and_localization_reads_it(tiny_map, tmp_path):
+    tactile_map, _, _ = tiny_map
+    # "spheres" is no catalog object: without a recorded group the map has none.
+    assert load_tactile_map(save_tactile_map(tmp_path / "none.npz", tactile_map)).object_symmetry == NO_SYMMETRY
+    recorded = ObjectSymmetry(axis="y", flips=("z",), centre=(1.0, 2.0, 3.0), exact=False)
+    loaded = load_tactile_map(save_tactile_map(tmp_path / "map.npz", tactile_map.replace(symmetry=recorded)))
+    assert loaded.symmetry == loaded.object_symmetry == recorded
+    view = LocalizationMap.from_tactile_map(loaded)
+    np.testing.assert_allclose(view.symmetry_axis, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(view.symmetry_centre, [1.0, 2.0, 3.0])
+    assert view.symmetries.wxyz_xyz.shape == (2, 7) and view.symmetric  # the identity and the flip
 
 
 def test_bytes_per_imprint_below_50_kB(tiny_map, tmp_path):
