@@ -102,17 +102,28 @@ def belief_settings():
 
 
 @pytest.fixture(scope="session")
-def bumps_view(bumps_map):
-    """The bumps map as localization reads it (surface built once per session)."""
-    return LocalizationMap.from_tactile_map(bumps_map, surface=SURFACE)
+def synthetic_views(bumps_map, ridges_map):
+    """The bumps and ridges maps as localization reads them (surfaces built once per session),
+    with the same shapes: the ridges' surface on the bumps' grid, both holding as many stored
+    blocks, so that everything compiled for one serves the other."""
+    bumps = LocalizationMap.from_tactile_map(bumps_map, surface=SURFACE)
+    ridges = LocalizationMap.from_tactile_map(ridges_map, surface=SURFACE)
+    ridges = ridges.replace(surface=build_map_surface(ridges_map, SURFACE, grid_like=bumps.surface))
+    blocks = max(bumps.surface.blocks.shape[0], ridges.surface.blocks.shape[0])
+    return tuple(view.replace(surface=view.surface.padded_to(view.surface.block_index.shape, blocks))
+                 for view in (bumps, ridges))
 
 
 @pytest.fixture(scope="session")
-def ridges_view(ridges_map, bumps_view):
-    """The ridges map, its surface on the bumps' grid: both views have the same shapes, so that
-    everything compiled for one serves the other."""
-    view = LocalizationMap.from_tactile_map(ridges_map, surface=SURFACE)
-    return view.replace(surface=build_map_surface(ridges_map, SURFACE, grid_like=bumps_view.surface))
+def bumps_view(synthetic_views):
+    """The bumps map as localization reads it (:func:`synthetic_views`)."""
+    return synthetic_views[0]
+
+
+@pytest.fixture(scope="session")
+def ridges_view(synthetic_views):
+    """The ridges map as localization reads it, with the bumps' shapes (:func:`synthetic_views`)."""
+    return synthetic_views[1]
 
 
 EPISODE_PLACES = [[(-2.0, 1.0, 0.0), (3.0, -2.5, 5.0)], [(1.5, -1.0, -4.0), (-4.5, 2.5, 3.0)]]
