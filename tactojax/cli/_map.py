@@ -17,6 +17,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
     parser.add_argument("--out", required=True, help="tactile map to write (.npz)")
     parser.add_argument("--object", help="which object, when the dataset holds several")
+    parser.add_argument("--symmetry", metavar="SPEC",
+                        help="the object's symmetry group, stored in the map: 'none', an axis continuous or n-fold "
+                             "('x', 'z2') and an optional ',flip=AXIS', in the map (object) frame (default: what "
+                             "the data recorded, else the catalog's by object id)")
     parser.add_argument("--points", type=int, default=1024, help="contact points kept per imprint")
     parser.add_argument("--encoder", default=None,
                         help="encoder of the retrieval features stored with the map (bundled:NAME or a checkpoint "
@@ -42,11 +46,13 @@ def run(args) -> int:
     from tactojax.io import (DEFAULT_ENCODER, encoder_label, export_ply, read_grasps, resolve_encoder, resolve_shape_model,
                              save_tactile_map)
     from tactojax.mapping import NOISE_LEVELS, build_tactile_map, perturb_kinematics
+    from tactojax.objects import ObjectSymmetry
 
     if args.kinematic_noise not in NOISE_LEVELS:
         raise ValueError(f"unknown kinematic noise level {args.kinematic_noise!r}; choose from {sorted(NOISE_LEVELS)}")
     if args.points < 1:
         raise ValueError(f"--points must be positive, got {args.points}")
+    declared = None if args.symmetry is None else ObjectSymmetry.parse(args.symmetry)  # a bad spec fails first
     model = resolve_shape_model(args.model)
     grasps = read_grasps(args.data, object_id=args.object)
     if abs(grasps["mm_per_px"] - model.mm_per_px) > 1e-6:
@@ -64,7 +70,8 @@ def run(args) -> int:
     # The retrieval features, once, from the images (a compact map keeps no images).
     encoder_name = encoder_label(args.encoder or DEFAULT_ENCODER)
     features = encode_images(resolve_encoder(encoder_name), tactile_map.stored_images(), progress=not args.no_progress)
-    tactile_map = tactile_map.with_features(features).replace(symmetry=grasps["symmetry"])
+    tactile_map = tactile_map.with_features(features).replace(
+        symmetry=declared if declared is not None else grasps["symmetry"])
     if not args.keep_images:
         tactile_map = tactile_map.replace(images=None)
     metadata = {"data": args.data, "model": args.model, "kinematic_noise": args.kinematic_noise,

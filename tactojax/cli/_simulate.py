@@ -26,6 +26,10 @@ def add_parser(commands) -> None:
                                        "or mesh path (STL/OBJ/PLY)")
     parser.add_argument("--out", required=True, help="dataset directory (created, or appended to)")
     parser.add_argument("--mesh-units", choices=["m", "cm", "mm"], default="m", help="length unit of a mesh file (default m, as YCB)")
+    parser.add_argument("--symmetry", metavar="SPEC",
+                        help="the object's symmetry group, recorded with its touches: 'none', an axis continuous "
+                             "or n-fold ('x', 'z2') and an optional ',flip=AXIS' (default: the catalog's, or "
+                             "measured from a mesh)")
     parser.add_argument("--protocol", choices=["mapping", "calibration", "grasps", "slip"], default="mapping")
     parser.add_argument("--sensor", choices=["gelslim", "gelsight", "gelsight_mini"], default="gelslim")
     parser.add_argument("--scale", type=float, default=DEFAULT_SCALE,
@@ -58,7 +62,7 @@ def add_parser(commands) -> None:
 
 def run(args) -> int:
     from tactojax.io import MeshRepairedWarning
-    from tactojax.objects import resolve_object
+    from tactojax.objects import ObjectSymmetry, resolve_object
     from tactojax.sensor import sensor_preset
     from tactojax.simulate import (CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol,
                                    mapping_grid_for, simulate_to_dataset)
@@ -68,6 +72,8 @@ def run(args) -> int:
         obj = resolve_object(args.object, units=args.mesh_units)
     if obj.mesh_repair:
         print(f"{args.object}: {obj.mesh_repair['summary']}")
+    if args.symmetry is not None:
+        obj = dataclasses.replace(obj, symmetry=ObjectSymmetry.parse(args.symmetry))
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))

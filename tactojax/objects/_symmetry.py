@@ -93,6 +93,36 @@ class ObjectSymmetry:
         parts += [f"flipped about {flip}" for flip in self.flips]
         return ", ".join(parts)
 
+    @staticmethod
+    def parse(text: str) -> ObjectSymmetry:
+        """A group from a short spec: ``"none"``; an axis, continuous (``"x"``) or n-fold
+        (``"z2"``, ``"x4"``); and optionally a half-turn flip (``"y,flip=z"``, ``"x2,flip=y"``;
+        ``"flip=x"`` alone). The turns are about the object frame's axes through its origin.
+
+        Raises:
+            ValueError: a spec that is none of these, naming what is wrong.
+        """
+        spec = text.strip().lower()
+        if spec == "none":
+            return NO_SYMMETRY
+        axis, fold, flips = None, 0, ()
+        for part in (p.strip() for p in spec.split(",")):
+            if part.startswith("flip="):
+                flip = part.removeprefix("flip=")
+                if flip not in _AXES:
+                    raise ValueError(f"symmetry {text!r}: flip about {flip!r}; axes are x, y, z")
+                flips += (flip,)
+            elif part[:1] in _AXES and axis is None and (part[1:] == "" or part[1:].isdigit()):
+                axis, fold = part[0], int(part[1:] or 0)
+                if fold == 1:
+                    raise ValueError(f"symmetry {text!r}: a 1-fold turn is no symmetry (give 'none', or n >= 2)")
+            else:
+                raise ValueError(f"symmetry {text!r}: expected 'none', an axis x/y/z with an optional fold "
+                                 "(x, z2) and an optional ',flip=AXIS'")
+        if len(flips) > 1 or (axis is not None and axis in flips):
+            raise ValueError(f"symmetry {text!r}: at most one flip, about an axis other than the turns'")
+        return ObjectSymmetry(axis=axis, fold=fold, flips=flips)
+
     def to_json(self) -> dict:
         """The group as a JSON object (a map file's header): :meth:`from_json` reads it back."""
         return {"axis": self.axis, "fold": self.fold, "flips": list(self.flips),

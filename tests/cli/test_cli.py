@@ -8,6 +8,7 @@ import trimesh
 
 from tactojax.cli import main
 from tactojax.io import load_imprints, open_dataset, read_grasps
+from tactojax.objects import ObjectSymmetry
 
 SMALL = ["--scale", "0.25", "--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0", "90", "--no-progress"]
 
@@ -72,7 +73,7 @@ def test_bad_meshes_get_clear_errors(tmp_path, capsys, mesh_kind, units, message
     assert not (tmp_path / "out" / "manifest.json").exists()
 
 
-def test_mesh_by_path_is_simulated(tmp_path):
+def test_mesh_by_path_is_simulated(tmp_path, capsys):
     path = _write_mesh(tmp_path / "block.stl", trimesh.creation.box((0.06, 0.03, 0.02)))  # metres
     out = tmp_path / "block"
     assert main(["simulate", path, "--mesh-units", "m", "--out", str(out), *SMALL]) == 0
@@ -82,6 +83,14 @@ def test_mesh_by_path_is_simulated(tmp_path):
     # about its three axes (mounted: x along the 60 mm side).
     symmetry = read_grasps(out)["symmetry"]
     assert symmetry.axis == "x" and symmetry.fold == 2 and len(symmetry.flips) == 1
+    # A declared group replaces the measured one; a bad spec is refused by name.
+    declared = tmp_path / "declared"
+    assert main(["simulate", path, "--mesh-units", "m", "--symmetry", "z2", "--out", str(declared), *SMALL]) == 0
+    assert read_grasps(declared)["symmetry"] == ObjectSymmetry(axis="z", fold=2)
+    assert main(["simulate", path, "--mesh-units", "m", "--symmetry", "q", "--out", str(declared), *SMALL]) == 2
+    assert main(["map", str(out), "--symmetry", "x1", "--out", str(tmp_path / "map.npz")]) == 2
+    errors = capsys.readouterr().err
+    assert "symmetry 'q'" in errors and "1-fold" in errors
 
 
 def test_a_mesh_with_a_hole_is_repaired_and_says_so(tmp_path, capsys):

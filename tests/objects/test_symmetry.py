@@ -128,3 +128,21 @@ def test_a_square_prism_has_four_fold_turns_and_a_json_round_trip():
     symmetry = detect_symmetry(trimesh.creation.box((70.0, 24.0, 24.0)))
     assert (symmetry.axis, symmetry.fold, len(symmetry.flips)) == ("x", 4, 1)
     assert ObjectSymmetry.from_json(symmetry.to_json()) == symmetry
+
+
+@pytest.mark.parametrize(("spec", "expected", "words"), [
+    ("none", ObjectSymmetry(), "none"), ("x", ObjectSymmetry(axis="x"), "continuous about x"),
+    ("z2", ObjectSymmetry(axis="z", fold=2), "2-fold about z"),
+    ("y,flip=z", ObjectSymmetry(axis="y", flips=("z",)), "continuous about y, flipped about z"),
+    ("X4, flip=y", ObjectSymmetry(axis="x", fold=4, flips=("y",)), "4-fold about x, flipped about y"),
+    ("flip=x", ObjectSymmetry(flips=("x",)), "flipped about x")])
+def test_a_symmetry_spec_parses_and_describes_itself(spec, expected, words):
+    assert ObjectSymmetry.parse(spec) == expected
+    assert expected.describe() == words
+
+
+@pytest.mark.parametrize(("spec", "message"), [("w", "expected 'none'"), ("x1", "1-fold"), ("x,flip=q", "flip about"),
+                                               ("x,flip=x", "at most one flip"), ("x,y", "expected 'none'")])
+def test_a_bad_symmetry_spec_is_refused_by_name(spec, message):
+    with pytest.raises(ValueError, match=message):
+        ObjectSymmetry.parse(spec)
