@@ -141,7 +141,7 @@ def _build_object(name: str, out: Path, model, encoder, encoder_name: str, args)
         shutil.rmtree(data)
     return {"status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,
             "imprints": len(tactile_map), "with_contact": int(tactile_map.imprint_valid.sum()),
-            "bytes": path.stat().st_size}
+            "bytes": path.stat().st_size, "symmetry": obj.symmetry.describe()}
 
 
 def summary_table(path, index: dict) -> str:
@@ -150,10 +150,11 @@ def summary_table(path, index: dict) -> str:
     for name, entry in index["objects"].items():
         if entry["status"] == "built":
             rows.append([name, "built", entry["imprints"], entry["with_contact"], f"{entry['grid_mm']:g}",
-                         entry["bytes"] / 1e6, entry.get("seconds")])
+                         entry["bytes"] / 1e6, entry.get("seconds"), entry.get("symmetry", "-")])
         else:
-            rows.append([name, f"failed: {entry['error'][:60]}", None, None, None, None, entry.get("seconds")])
-    table = format_table(["object", "status", "imprints", "with contact", "grid (mm)", "MB", "build (s)"], rows)
+            rows.append([name, f"failed: {entry['error'][:60]}", None, None, None, None, entry.get("seconds"), None])
+    table = format_table(["object", "status", "imprints", "with contact", "grid (mm)", "MB", "build (s)", "symmetry"],
+                         rows)
     total_mb = sum(e["bytes"] for e in built) / 1e6
     total_s = sum(e.get("seconds") or 0.0 for e in index["objects"].values())
     return (f"{table}\ncatalog {path}: {len(built)} of {len(index['objects'])} objects mapped, "

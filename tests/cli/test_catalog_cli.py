@@ -9,6 +9,7 @@ from tactojax.cli import main
 from tactojax.cli._maps import maps_and_query_encoder
 from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, maps_encoder_name, read_catalog,
                          save_shape_model, save_tactile_map, tactile_map_metadata)
+from tactojax.objects import get_object
 
 
 def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_encoder_path, tmp_path, capsys):
@@ -24,6 +25,9 @@ def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_en
     cylinder = load_tactile_map(out / "cylinder.npz")
     assert cylinder.object_id == "cylinder" and cylinder.features.shape[1] > 0  # the encoder's, stored
     assert index["objects"]["cylinder"]["imprints"] == len(cylinder)
+    # The object's symmetry travels with the map, and the index says it in words.
+    assert cylinder.symmetry == get_object("cylinder").symmetry
+    assert index["objects"]["cylinder"]["symmetry"] == "continuous about x, flipped about z"
     assert not (out / ".data" / "cylinder").exists()  # the simulated dataset is not kept
 
     # Interrupted while building the gum box (its half-written dataset is left), then resumed.
