@@ -62,7 +62,7 @@ def add_parser(commands) -> None:
 
 def run(args) -> int:
     from tactojax.io import MeshRepairedWarning
-    from tactojax.objects import ObjectSymmetry, resolve_object
+    from tactojax.objects import CATALOG, ObjectSymmetry, resolve_object
     from tactojax.sensor import sensor_preset
     from tactojax.simulate import (CalibrationProtocol, GraspConfig, GraspsProtocol, MappingProtocol, SlipProtocol,
                                    mapping_grid_for, simulate_to_dataset)
@@ -74,6 +74,9 @@ def run(args) -> int:
         print(f"{args.object}: {obj.mesh_repair['summary']}")
     if args.symmetry is not None:
         obj = dataclasses.replace(obj, symmetry=ObjectSymmetry.parse(args.symmetry))
+    source = ("declared" if args.symmetry is not None else "the catalog's" if args.object in CATALOG
+              else "measured from the mesh")
+    print(f"{obj.name}: symmetry {obj.symmetry.describe()} ({source})")
     spec = sensor_preset(args.sensor, scale=args.scale)
     if args.protocol == "mapping":
         protocol = MappingProtocol(grid_mm=args.grid_mm, yaws_deg=tuple(args.yaws_deg), turns_deg=tuple(args.turns_deg))

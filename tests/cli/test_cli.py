@@ -85,7 +85,9 @@ def test_mesh_by_path_is_simulated(tmp_path, capsys):
     assert symmetry.axis == "x" and symmetry.fold == 2 and len(symmetry.flips) == 1
     # A declared group replaces the measured one; a bad spec is refused by name.
     declared = tmp_path / "declared"
+    assert "block: symmetry 2-fold about x, flipped about y (measured from the mesh)" in capsys.readouterr().out
     assert main(["simulate", path, "--mesh-units", "m", "--symmetry", "z2", "--out", str(declared), *SMALL]) == 0
+    assert "symmetry 2-fold about z (declared)" in capsys.readouterr().out
     assert read_grasps(declared)["symmetry"] == ObjectSymmetry(axis="z", fold=2)
     assert main(["simulate", path, "--mesh-units", "m", "--symmetry", "q", "--out", str(declared), *SMALL]) == 2
     assert main(["map", str(out), "--symmetry", "x1", "--out", str(tmp_path / "map.npz")]) == 2
