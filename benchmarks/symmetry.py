@@ -20,6 +20,7 @@ import time
 import warnings
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 try:
     from benchmarks._common import add_common_arguments, format_table, machine_info, write_json
@@ -30,15 +31,9 @@ from tactojax.io import MeshRepairedWarning
 from tactojax.objects import (CATALOG, SYMMETRY_TOLERANCE_MM, detect_symmetry, get_object, symmetry_residual,
                               ycb_object, ycb_scans)
 
-_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-
-
 def turn(axis: str, degrees: float) -> np.ndarray:
-    """The 3 x 3 rotation by ``degrees`` about the frame axis ``axis`` (Rodrigues)."""
-    k = np.array(_AXES[axis])
-    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    angle = np.deg2rad(degrees)
-    return np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * (cross @ cross)
+    """The 3 x 3 rotation by ``degrees`` about the frame axis ``axis``."""
+    return Rotation.from_euler(axis, degrees, degrees=True).as_matrix()
 
 
 def parse_args() -> argparse.Namespace:

@@ -12,6 +12,7 @@ it measured from its surface (:func:`detect_symmetry`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -167,6 +168,43 @@ with n <= 6 holds more than one of them)."""
 _FOLDS = (6, 5, 4, 3, 2)
 
 
+@dataclass(frozen=True)
+class _SurfaceSample:
+    """What every residual of one mesh reads: two independent uniform draws of its surface with
+    their normals, the reference draw's k-d tree, and each query's patch (the queries within the
+    patch radius of it)."""
+
+    reference: np.ndarray
+    reference_normals: np.ndarray
+    tree: cKDTree
+    queries: np.ndarray
+    query_normals: np.ndarray
+    patches: list
+
+
+def _surface_sample(mesh: trimesh.Trimesh, samples: int, seed: int, patch_radius_mm: float) -> _SurfaceSample:
+    rng = np.random.default_rng(seed)
+    reference, reference_faces = trimesh.sample.sample_surface(mesh, samples, seed=rng)
+    queries, query_faces = trimesh.sample.sample_surface(mesh, samples // 4, seed=rng)
+    return _SurfaceSample(reference, mesh.face_normals[reference_faces], cKDTree(reference), queries,
+                          mesh.face_normals[query_faces], cKDTree(queries).query_ball_point(queries, patch_radius_mm))
+
+
+def _residual(sample: _SurfaceSample, rotation: np.ndarray, centre) -> float:
+    """:func:`symmetry_residual` of a drawn surface."""
+    centre = np.asarray(centre, np.float64)
+    turned = (sample.queries - centre) @ rotation.T + centre
+    turned_normals = sample.query_normals @ rotation.T
+    gap, nearest = sample.tree.query(turned, k=8)  # (Q, 8)
+    offset = turned[:, None, :] - sample.reference[nearest]
+    normals = sample.reference_normals[nearest]
+    along_normal = np.abs(np.sum(offset * normals, axis=-1))
+    agree = np.sum(turned_normals[:, None, :] * normals, axis=-1) > 0.5
+    distance = np.where(np.any(agree, axis=1), np.min(np.where(agree, along_normal, np.inf), axis=1), gap[:, 0])
+    squared = distance ** 2
+    return float(np.sqrt(max(np.mean(squared[patch]) for patch in sample.patches)))
+
+
 def symmetry_residual(mesh: trimesh.Trimesh, rotation: np.ndarray, *, centre=(0.0, 0.0, 0.0),
                       patch_radius_mm: float = PATCH_RADIUS_MM, samples: int = 20000, seed: int = 0) -> float:
     """How far the mesh's surface turned by ``rotation`` (3 x 3, about ``centre``) lies from the
@@ -177,22 +215,7 @@ def symmetry_residual(mesh: trimesh.Trimesh, rotation: np.ndarray, *, centre=(0.
     along the normal of the nearest of their 8 nearest points whose normal agrees with theirs (a
     plane's sampling leaves no error, nor does an edge), else to the nearest point (a copy that
     lands on nothing, or on the other side of a thin wall)."""
-    rng = np.random.default_rng(seed)
-    reference, reference_faces = trimesh.sample.sample_surface(mesh, samples, seed=rng)
-    queries, query_faces = trimesh.sample.sample_surface(mesh, samples // 4, seed=rng)
-    centre = np.asarray(centre, np.float64)
-    turned = (queries - centre) @ rotation.T + centre
-    turned_normals = mesh.face_normals[query_faces] @ rotation.T
-    gap, nearest = cKDTree(reference).query(turned, k=8)  # (Q, 8)
-    offset = turned[:, None, :] - reference[nearest]
-    normals = mesh.face_normals[reference_faces][nearest]
-    along_normal = np.abs(np.sum(offset * normals, axis=-1))
-    agree = np.sum(turned_normals[:, None, :] * normals, axis=-1) > 0.5
-    distance = np.where(np.any(agree, axis=1), np.min(np.where(agree, along_normal, np.inf), axis=1), gap[:, 0])
-    # Each query's patch: the queries within the radius of it, before the turn.
-    patches = cKDTree(queries).query_ball_point(queries, patch_radius_mm)
-    squared = distance ** 2
-    return float(np.sqrt(max(np.mean(squared[patch]) for patch in patches)))
+    return _residual(_surface_sample(mesh, samples, seed, patch_radius_mm), rotation, centre)
 
 
 def detect_symmetry(mesh: trimesh.Trimesh, *, tolerance_mm: float = SYMMETRY_TOLERANCE_MM,
@@ -218,9 +241,12 @@ def detect_symmetry(mesh: trimesh.Trimesh, *, tolerance_mm: float = SYMMETRY_TOL
         the group (the identity alone when no turn holds); ``exact`` is False (measured to the
         tolerance, not declared).
     """
-    def holds(axis: str, angle_deg: float) -> bool:
+    sample = _surface_sample(mesh, samples, 0, PATCH_RADIUS_MM)  # drawn once: every turn reads it
+
+    @functools.cache
+    def holds(axis: str, angle_deg: float) -> bool:  # cached: the half turn is asked up to three times
         rotation = _axis_angle(_AXES[axis], np.deg2rad(angle_deg))
-        return symmetry_residual(mesh, rotation, samples=samples) <= tolerance_mm
+        return _residual(sample, rotation, (0.0, 0.0, 0.0)) <= tolerance_mm
 
     groups = {}
     for axis in "xyz":
