@@ -5,14 +5,18 @@ The belief scores every hypothesis by how its touches fit the map's signed-dista
 contact mask. This script swaps in exact data one part at a time and runs the same belief
 (:func:`tactojax.localize.evaluation.evaluate_new_grasps`) on the same episodes:
 
-- **surface**: the map's, or the object's true signed distance (the simulator's solid) on the
-  same grid, known where it is within the map's reach of the surface;
+- **surface**: the map's; the object's true signed distance (the simulator's solid) on the same
+  grid, at the cells where the map knows its surface (exact values, the map's coverage); or the
+  true signed distance known wherever it is within the map's reach of the surface (the whole
+  object, as if every part of it had been felt). The first two differ by the map's accuracy,
+  the last two by its coverage;
 - **touches**: the shape model's heightmaps and contact masks, or the simulator's.
 
 When exact data lifts the share within 2 mm, the data (local shape, mapping) is the limit; when
 exact data still misses, the touches do not carry the information or the search does not find
 it. Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
-catalog's). Needs a catalog object (its true solid). The map's stored belief calibration is used.
+catalog's). Needs a catalog object (its true solid: a primitive's signed distance, or a mesh's
+from trimesh). The map's stored belief calibration is used.
 
     python benchmarks/belief_limits.py gum_box.npz --test data/dev-gum_box --json limits.json
     python benchmarks/belief_limits.py --quick     # smoke run: 2 episodes of 2 grasps, scissors on a 20 mm map
@@ -42,16 +46,51 @@ REACH_MM = 1.5
 """The true surface is known where the object's surface is this close (the map's own reach), mm."""
 
 
-def true_surface(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> LocalizationMap:
+def true_surface(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM, *,
+                 where: str = "shell") -> LocalizationMap:
     """``view`` with its surface grid replaced by the object's exact signed distance at the same
-    cells (NaN, unknown, farther than ``reach_mm`` from the surface)."""
+    cells: ``where="shell"``, at every cell within ``reach_mm`` of the object's surface (the whole
+    object, felt or not); ``where="map"``, at the cells where the map knows its surface (its
+    coverage, exact values). NaN, unknown, elsewhere."""
+    distance, known = _true_distance(view, object_id)
+    keep = np.abs(distance) <= reach_mm if where == "shell" else known
+    surface = view.surface
+    return view.replace(surface=MapSurface.from_dense(np.where(keep, distance, np.nan).astype(np.float32),
+                                                      surface.origin, surface.pitch_mm))
+
+
+def _true_distance(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> tuple[np.ndarray, np.ndarray]:
+    """The object's signed distance (mm, > 0 outside) at every cell of the map's surface grid
+    where the map knows its surface or the object's surface is within ``reach_mm`` (+inf at the
+    other cells of a mesh object), and where the map knows it."""
     solid = get_object(object_id).solid
     surface = view.surface
-    cells = jnp.stack(jnp.meshgrid(*(jnp.arange(n) for n in surface.shape), indexing="ij"), -1).reshape(-1, 3)
-    centres = surface.origin + cells * surface.pitch_mm
-    distance = jax.lax.map(solid.sdf, centres, batch_size=4096).reshape(surface.shape)
-    distance = jnp.where(jnp.abs(distance) <= reach_mm, distance, jnp.nan)
-    return view.replace(surface=MapSurface.from_dense(distance, surface.origin, surface.pitch_mm))
+    known = np.isfinite(np.asarray(surface.distance))
+    cells = np.stack(np.meshgrid(*(np.arange(n) for n in surface.shape), indexing="ij"), -1).reshape(-1, 3)
+    centres = np.asarray(surface.origin, np.float64) + cells * surface.pitch_mm
+    if hasattr(solid, "sdf"):  # a primitive: its exact signed distance, in JAX
+        distance = np.asarray(jax.lax.map(solid.sdf, jnp.asarray(centres, jnp.float32), batch_size=4096))
+        return distance.reshape(surface.shape), known
+    # A mesh: trimesh's signed distance (> 0 inside) at the cells near its surface (a dense sample
+    # of it finds them) or known to the map; the others are farther than the reach.
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    mesh = solid.mesh
+    spacing = surface.pitch_mm / 2
+    samples, _ = trimesh.sample.sample_surface_even(mesh, int(mesh.area / spacing ** 2) + 1, seed=0)
+    near, _ = cKDTree(samples).query(centres, distance_upper_bound=reach_mm + surface.pitch_mm, workers=-1)
+    ask = np.isfinite(near) | known.reshape(-1)
+    distance = np.full(len(centres), np.inf)
+    distance[ask] = -trimesh.proximity.signed_distance(mesh, centres[ask])
+    return distance.reshape(surface.shape), known
+
+
+def coverage(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> float:
+    """The share of the object's surface shell (cells within ``reach_mm`` of it) where the map knows its surface."""
+    distance, known = _true_distance(view, object_id)
+    shell = np.abs(distance) <= reach_mm
+    return float(np.mean(known[shell]))
 
 
 def exact_touches(episodes, test, object_id: str):
@@ -97,8 +136,10 @@ def main() -> None:
     episodes, _ = load_test_episodes(test, name, model, encoder, progress=False)
     view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
     exact_view, exact_episodes = true_surface(view, name), exact_touches(episodes, test, name)
-    cases = {("map", "predicted"): (view, episodes), ("true", "predicted"): (exact_view, episodes),
-             ("map", "exact"): (view, exact_episodes), ("true", "exact"): (exact_view, exact_episodes)}
+    covered_view = true_surface(view, name, where="map")
+    cases = {("map", "predicted"): (view, episodes), ("true, map's cells", "predicted"): (covered_view, episodes),
+             ("true", "predicted"): (exact_view, episodes), ("map", "exact"): (view, exact_episodes),
+             ("true", "exact"): (exact_view, exact_episodes)}
     results = []
     for (surface, touches), (case_view, case_episodes) in cases.items():
         print(f"surface: {surface}, touches: {touches} ...", flush=True)
@@ -109,12 +150,14 @@ def main() -> None:
         ["surface", "touches"] + [f"{g} grasp{'s' * (g > 1)}: within 2 mm, median" for g in grasps],
         [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
                                          for row in r["per_grasps"]] for r in results]))
+    share = coverage(view, name)
     print(f"{name}: {episodes.openings.shape[0]} episodes x {args.fingers} finger(s); calibration: "
-          f"{'stored' if calibration is not None else 'none (default)'}")
+          f"{'stored' if calibration is not None else 'none (default)'}; the map knows {100 * share:.0f} % of the "
+          f"object's surface")
     if args.json:
         write_json(args.json, {"object": name, "map": (map_paths(args) or [name])[0], "test": str(test),
                                "fingers": args.fingers, "episodes": int(episodes.openings.shape[0]),
-                               "results": results, "seed": args.seed, "machine": machine_info()})
+                               "coverage": share, "results": results, "seed": args.seed, "machine": machine_info()})
         print(f"wrote {args.json}")
 
 
