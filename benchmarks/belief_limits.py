@@ -46,20 +46,17 @@ REACH_MM = 1.5
 """The true surface is known where the object's surface is this close (the map's own reach), mm."""
 
 
-def true_surface(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM, *,
-                 where: str = "shell") -> LocalizationMap:
-    """``view`` with its surface grid replaced by the object's exact signed distance at the same
-    cells: ``where="shell"``, at every cell within ``reach_mm`` of the object's surface (the whole
-    object, felt or not); ``where="map"``, at the cells where the map knows its surface (its
-    coverage, exact values). NaN, unknown, elsewhere."""
-    distance, known = _true_distance(view, object_id)
-    keep = np.abs(distance) <= reach_mm if where == "shell" else known
+def true_surface(view: LocalizationMap, distance: np.ndarray, keep: np.ndarray) -> LocalizationMap:
+    """``view`` with its surface grid replaced by the object's exact signed distance
+    (:func:`true_distance`) at the cells ``keep`` (NaN, unknown, elsewhere): the cells within the
+    reach of the object's surface (the whole object, felt or not), or those where the map knows
+    its surface (its coverage, exact values)."""
     surface = view.surface
     return view.replace(surface=MapSurface.from_dense(np.where(keep, distance, np.nan).astype(np.float32),
                                                       surface.origin, surface.pitch_mm))
 
 
-def _true_distance(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> tuple[np.ndarray, np.ndarray]:
+def true_distance(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> tuple[np.ndarray, np.ndarray]:
     """The object's signed distance (mm, > 0 outside) at every cell of the map's surface grid
     where the map knows its surface or the object's surface is within ``reach_mm`` (+inf at the
     other cells of a mesh object), and where the map knows it."""
@@ -86,11 +83,10 @@ def _true_distance(view: LocalizationMap, object_id: str, reach_mm: float = REAC
     return distance.reshape(surface.shape), known
 
 
-def coverage(view: LocalizationMap, object_id: str, reach_mm: float = REACH_MM) -> float:
-    """The share of the object's surface shell (cells within ``reach_mm`` of it) where the map knows its surface."""
-    distance, known = _true_distance(view, object_id)
-    shell = np.abs(distance) <= reach_mm
-    return float(np.mean(known[shell]))
+def coverage(distance: np.ndarray, known: np.ndarray, reach_mm: float = REACH_MM) -> float:
+    """The share of the object's surface shell (cells within ``reach_mm`` of it: :func:`true_distance`)
+    where the map knows its surface."""
+    return float(np.mean(known[np.abs(distance) <= reach_mm]))
 
 
 def exact_touches(episodes, test, object_id: str):
@@ -135,8 +131,10 @@ def main() -> None:
     test = new_grasps_set(args, name, episodes=args.episodes, grasps=2 if args.quick else 3, fingers=2)
     episodes, _ = load_test_episodes(test, name, model, encoder, progress=False)
     view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
-    exact_view, exact_episodes = true_surface(view, name), exact_touches(episodes, test, name)
-    covered_view = true_surface(view, name, where="map")
+    distance, known = true_distance(view, name)  # once: a mesh's takes a while
+    exact_view, exact_episodes = true_surface(view, distance, np.abs(distance) <= REACH_MM), exact_touches(
+        episodes, test, name)
+    covered_view = true_surface(view, distance, known)
     cases = {("map", "predicted"): (view, episodes), ("true, map's cells", "predicted"): (covered_view, episodes),
              ("true", "predicted"): (exact_view, episodes), ("map", "exact"): (view, exact_episodes),
              ("true", "exact"): (exact_view, exact_episodes)}
@@ -150,7 +148,7 @@ def main() -> None:
         ["surface", "touches"] + [f"{g} grasp{'s' * (g > 1)}: within 2 mm, median" for g in grasps],
         [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
                                          for row in r["per_grasps"]] for r in results]))
-    share = coverage(view, name)
+    share = coverage(distance, known)
     print(f"{name}: {episodes.openings.shape[0]} episodes x {args.fingers} finger(s); calibration: "
           f"{'stored' if calibration is not None else 'none (default)'}; the map knows {100 * share:.0f} % of the "
           f"object's surface")

@@ -31,6 +31,7 @@ from tactojax.io import MeshRepairedWarning
 from tactojax.objects import (CATALOG, SYMMETRY_TOLERANCE_MM, detect_symmetry, get_object, symmetry_residual,
                               ycb_object, ycb_scans)
 
+
 def turn(axis: str, degrees: float) -> np.ndarray:
     """The 3 x 3 rotation by ``degrees`` about the frame axis ``axis``."""
     return Rotation.from_euler(axis, degrees, degrees=True).as_matrix()
