@@ -31,10 +31,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax import struct
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 from tqdm.auto import tqdm
 
+from tactojax import _struct as struct
 from tactojax.features._encoder import (
     Encoder, as_unit_range, encode_images, init_encoder, network_input, normalize_features, resize_image,
 )

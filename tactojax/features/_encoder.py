@@ -23,10 +23,10 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Float, PRNGKeyArray
 from tqdm.auto import tqdm
 
+from tactojax import _struct as struct
 from tactojax.features._efficientnet import EfficientNetLite0
 from tactojax.features._plain import PLAIN_PRESETS
 from tactojax.features._resnet import RESNET_PRESETS

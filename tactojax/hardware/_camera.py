@@ -31,9 +31,9 @@ from typing import Literal, Self
 
 import cv2
 import numpy as np
-from flax import struct
 from jaxtyping import Float, UInt8
 
+from tactojax import _struct as struct
 from tactojax.sensor import SensorSpec
 
 LOSSLESS_FOURCC = "png "

@@ -37,8 +37,9 @@ from typing import Literal, Protocol, Self
 
 import jaxlie
 import numpy as np
-from flax import struct as flax_struct
 from jaxtyping import Float
+
+from tactojax import _struct as pytree_struct
 
 CSV_HEADER = ("timestamp_s", "qw", "qx", "qy", "qz", "x_mm", "y_mm", "z_mm")
 QUATERNION_NORM_TOLERANCE = 1e-3
@@ -60,7 +61,7 @@ class StaleDataError(RuntimeError):
                          f"(max {max_skew_s:.4f} s){': ' + detail if detail else ''}")
 
 
-@flax_struct.dataclass
+@pytree_struct.dataclass
 class PoseSample:
     """The gripper's pose at one time."""
 

@@ -14,9 +14,9 @@ from typing import Protocol
 
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Float, UInt8
 
+from tactojax import _struct as struct
 from tactojax.hardware._pose_source import PoseSource, StaleDataError
 
 OpeningSamples = Float[np.ndarray, "N 2"] | Sequence[tuple[float, float]] | Callable[[], tuple[float, float]]

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from tactojax import _struct as struct
 from tactojax.geometry import take
 from tactojax.localize._belief import WITHIN_MM, PoseBelief, hypothesis_distances
 from tactojax.localize._likelihood import LikelihoodSettings, log_likelihood

@@ -38,9 +38,9 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax import _struct as struct
 from tactojax.geometry import take
 from tactojax.localize._candidates import CandidateGrid
 from tactojax.localize._correspondences import valid_centroid

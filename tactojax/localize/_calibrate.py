@@ -37,9 +37,9 @@ import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax import _struct as struct
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief, belief_terms, hypothesis_distances
 from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs
 from tactojax.localize._map import BeliefCalibration, LocalizationMap

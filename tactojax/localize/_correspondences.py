@@ -19,9 +19,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, Float16, Int
 
+from tactojax import _struct as struct
 from tactojax.localize._map import LocalizationMap
 from tactojax.mapping import unpack_heightmaps
 

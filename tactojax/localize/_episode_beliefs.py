@@ -21,10 +21,10 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
+from tactojax import _struct as struct
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
 from tactojax.localize._map import LocalizationMap, Touch
 from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
+from tactojax import _struct as struct
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.mapping import TactileMap
 

@@ -8,9 +8,9 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Float16, Int
 
+from tactojax import _struct as struct
 from tactojax.localize._surface import MapSurface, SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap, unpack_heightmaps
 from tactojax.objects import ObjectSymmetry

@@ -12,9 +12,9 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax import _struct as struct
 from tactojax.geometry import pixel_grid
 from tactojax.localize._map import Touch
 

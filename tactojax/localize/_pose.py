@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
+
+from tactojax import _struct as struct
 
 
 @struct.dataclass

@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float
 
+from tactojax import _struct as struct
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.localize._correspondences import matvec
 from tactojax.localize._points import TouchEvidence, draw_pixels, pixel_priority

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax import _struct as struct
 from tactojax.mapping import TactileMap
 
 

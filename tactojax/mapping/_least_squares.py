@@ -34,9 +34,10 @@ from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
-from flax import struct
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float, Int
+
+from tactojax import _struct as struct
 
 Loss = Literal["linear", "huber", "cauchy"]
 LOSSES: tuple[str, ...] = ("linear", "huber", "cauchy")

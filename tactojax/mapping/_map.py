@@ -5,9 +5,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, Float16, Int, UInt8
 
+from tactojax import _struct as struct
 from tactojax.mapping._packing import pixel_points, unpack_heightmaps
 from tactojax.objects import ObjectSymmetry, object_symmetry
 

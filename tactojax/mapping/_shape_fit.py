@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax import _struct as struct
 from tactojax.mapping._least_squares import solve_least_squares
 from tactojax.objects._object import TactileObject
 from tactojax.objects._primitives import Box, Cylinder, Frustum, Solid, SquareFrustum, Union, placed

@@ -20,9 +20,9 @@ from typing import Protocol
 
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Float
 
+from tactojax import _struct as struct
 from tactojax.objects import _intervals as iv
 from tactojax.objects._intervals import Interval
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
-from flax import struct
 from jaxtyping import Array, Bool, Float
 
+from tactojax import _struct as struct
 from tactojax.objects._primitives import Solid
 
 

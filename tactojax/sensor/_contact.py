@@ -26,9 +26,9 @@ half-space solution, documented as such; it keeps every output differentiable.
 from __future__ import annotations
 
 import jax.numpy as jnp
-from flax import struct
 from jaxtyping import Array, Bool, Float
 
+from tactojax import _struct as struct
 from tactojax.sensor._smoothing import gaussian_blur
 from tactojax.sensor._spec import SensorSpec
 

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float
+
+from tactojax import _struct as struct
 
 
 @struct.dataclass

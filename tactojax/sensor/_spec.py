@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from flax import struct
 from jaxtyping import Array, Float
+
+from tactojax import _struct as struct
 
 
 @struct.dataclass

@@ -6,9 +6,9 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from flax import struct
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
+from tactojax import _struct as struct
 from tactojax.shape._lookup import lookup_slope
 from tactojax.shape._models import (MASK_SHARPNESS_MM, USES_BACKGROUND, SlopePoissonNet, build_network,
                                     pixel_coordinates)

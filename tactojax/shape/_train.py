@@ -15,10 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax import struct
 from jaxtyping import Array, Float, PRNGKeyArray
 from tqdm.auto import tqdm
 
+from tactojax import _struct as struct
 from tactojax.geometry import heightmap_gradient
 from tactojax.sensor import augment_colors
 from tactojax.shape._data import ShapeData, estimate_background

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import jaxlie
-from flax import struct
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
+from tactojax import _struct as struct
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.objects import TactileObject
 from tactojax.sensor import Imprint, SensorSpec

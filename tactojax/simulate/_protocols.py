@@ -34,9 +34,9 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from flax import struct
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from tactojax import _struct as struct
 from tactojax.objects import TactileObject
 from tactojax.sensor import SensorSpec
 
