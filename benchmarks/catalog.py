@@ -4,7 +4,8 @@ For every count N of ``--counts`` (default 1, 5, 20, 50, 100; counts above the m
 left out), the first N maps of the catalog, as the live loop holds them:
 
 - **memory**: the maps padded to one shape (the localizer's ``views``), MB and kB per valid imprint;
-- **build**: ``Localizer(maps, ...)`` wall time, and its ``compile_s`` (every program compiled
+- **build**: ``Localizer(maps, ...)`` wall time, with the surfaces the map files store (a map
+  without one has it built then, 1-4 s a map), and its ``compile_s`` (every program compiled
   once for all maps: padding makes the update's program the same for one map or a hundred);
 - **latency**: a frame that updates every map's belief at once (``Localizer.fuse``, the grasp's
   update in the foreground) and a frame between updates (no contact), medians of ``--repeats``;
@@ -32,7 +33,7 @@ import jax
 import numpy as np
 
 from tactojax.io import (expand_catalogs, load_tactile_map_with_features, maps_encoder_name, read_test_grasps,
-                         resolve_encoder, resolve_shape_model)
+                         resolve_encoder, resolve_shape_model, stored_surface)
 from tactojax.localize import Localizer
 from tactojax.localize.evaluation import evaluate_identification
 
@@ -72,12 +73,12 @@ def own_shape_compile_s(maps, model, encoder) -> float:
     return total
 
 
-def one_count(maps, count: int, model, encoder, frame, args) -> dict:
-    """Every figure of one row: the first ``count`` maps."""
+def one_count(maps, surfaces, count: int, model, encoder, frame, args) -> dict:
+    """Every figure of one row: the first ``count`` maps (and their stored surfaces)."""
     chosen = maps[:count]
     imprints = sum(int(np.sum(m.imprint_valid)) for m in chosen)
     start = time.perf_counter()
-    localizer = Localizer(chosen, model, encoder)
+    localizer = Localizer(chosen, model, encoder, surfaces=surfaces[:count])
     build_s = time.perf_counter() - start
     views = localizer.views  # the maps padded to one shape, as the live loop holds them
     image, opening, released = frame
@@ -130,15 +131,18 @@ def main(argv=None) -> int:
     encoder_name = maps_encoder_name(paths, args.encoder)
     encoder = resolve_encoder(encoder_name)
     maps = [load_tactile_map_with_features(path, encoder_name) for path in paths[:max(counts)]]
+    surfaces = [stored_surface(path) for path in paths[:max(counts)]]
+    print(f"{sum(s is not None for s in surfaces)} of {len(surfaces)} maps store their surface", flush=True)
     frame = test_frame(args, maps[0].object_id, model)
     rows = []
     for count in counts:
-        rows.append(one_count(maps, count, model, encoder, frame, args))
+        rows.append(one_count(maps, surfaces, count, model, encoder, frame, args))
         print(f"{count} maps done", flush=True)
     one = rows[0]
-    header = ["maps", "imprints", "memory MB", "kB / imprint", "build s", "compile s", "own shapes s",
+    header = ["maps", "imprints", "memory MB", "kB / imprint", "build s", "x 1 map", "compile s", "own shapes s",
               "update ms", "x 1 map", "frame ms", "identification top-1"]
-    table = [[r["maps"], r["imprints"], r["memory_mb"], r["kb_per_imprint"], r["build_s"], r["compile_s"],
+    table = [[r["maps"], r["imprints"], r["memory_mb"], r["kb_per_imprint"], r["build_s"],
+              f"{r['build_s'] / one['build_s']:.1f}x", r["compile_s"],
               r.get("own_shape_compile_s", "-"), r["update_ms"], r["update_ms"] / one["update_ms"], r["frame_ms"],
               f"{100 * r['identification_top1']:.1f} %" if "identification_top1" in r else "-"] for r in rows]
     print(format_table(header, table))

@@ -25,7 +25,7 @@ def add_active_arguments(group) -> None:
                        help="stop when the belief's P(within 2 mm) reaches this (default 0.95)")
 
 
-def run_simulated_active(spec, obj, maps, model, encoder, *, calibrations=None, turn_deg: float = 0.0,
+def run_simulated_active(spec, obj, maps, model, encoder, *, calibrations=None, surfaces=None, turn_deg: float = 0.0,
                          max_grasps: int = 3, candidates: int = 32, stop: float = 0.95, seed: int = 0,
                          recorder=None, object_id: str = "", figure: str | Path | None = None) -> dict:
     """Run one active episode on a simulated two-finger cell (see the module docstring), print
@@ -50,7 +50,7 @@ def run_simulated_active(spec, obj, maps, model, encoder, *, calibrations=None, 
     if max_grasps < 1 or candidates < 1 or not 0.0 < stop <= 1.0:
         raise ValueError("--max-grasps and --candidates must be at least 1, --stop in (0, 1]")
     start = time.perf_counter()
-    localizer = Localizer(maps, model, encoder, calibrations=calibrations,
+    localizer = Localizer(maps, model, encoder, calibrations=calibrations, surfaces=surfaces,
                           settings=BeliefSettings(max_touches=max(6, 2 * max_grasps)))
     print(f"live localizer compiled in {localizer.compile_s:.1f} s")
     plan = grasps_plan(jax.random.key(seed), obj, GraspsProtocol(episodes=1, grasps_per_episode=FIRST_GRASPS,

@@ -225,6 +225,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     """Beyond the paper: the pose belief on new grasps, fused over the grasps of each episode."""
     import numpy as np
 
+    from tactojax.cli._maps import map_surface
     from tactojax.localize import LocalizationMap, Touch, localize
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.objects import get_object
@@ -247,7 +248,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
         simulate_to_dataset(dataset, jax.random.key(args.seed + 200 + index), spec, get_object(name), protocol,
                             progress=False)
         episodes, _ = load_test_episodes(dataset, name, model, encoder, progress=False)
-        view = LocalizationMap.from_tactile_map(tactile_map)
+        view = LocalizationMap.from_tactile_map(tactile_map, surface=map_surface(out / "maps" / f"{name}.npz"))
         symmetry = (view.symmetries, view.symmetry_axis, view.symmetry_centre)
         count = int(episodes.openings.shape[0])
         error, within = np.full((count, args.grasps), np.inf), np.zeros((count, args.grasps))
@@ -295,6 +296,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
 def _active(args, spec, model, encoder, maps, out: Path) -> dict:
     """Beyond the paper: one active episode on the simulated cell (robot, cameras, pose feed)."""
     from tactojax.cli._active_cell import run_simulated_active
+    from tactojax.io import stored_surface
     from tactojax.objects import get_object
 
     if args.active_grasps < 1:
@@ -305,7 +307,7 @@ def _active(args, spec, model, encoder, maps, out: Path) -> dict:
           f"live localizer chooses each grasp among {args.active_candidates} proposals by expected gain in P(within "
           f"2 mm), until P >= 0.95 or {args.active_grasps} grasps (the default scales)")
     return run_simulated_active(spec, get_object(chosen.object_id), [chosen], model, encoder,
-                                max_grasps=args.active_grasps, candidates=args.active_candidates, seed=args.seed,
+                                surfaces=[stored_surface(out / "maps" / f"{chosen.object_id}.npz")], max_grasps=args.active_grasps, candidates=args.active_candidates, seed=args.seed,
                                 figure=out / "demo_active.png")
 
 

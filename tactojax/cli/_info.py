@@ -92,10 +92,12 @@ def _map_bytes(args) -> int:
     count = max(summary["imprints"], 1)
     rows = [[name, f"{field['memory'] / count:,.0f}", "-" if field["disk"] is None else f"{field['disk'] / count:,.0f}"]
             for name, field in sorted(summary["fields"].items(), key=lambda item: -item[1]["memory"])]
-    rows.append(["total", f"{summary['memory_bytes'] / count:,.0f}", f"{summary['file_bytes'] / count:,.0f}"])
+    total = summary["memory_bytes"] + summary["surface_bytes"]
+    rows.append(["total", f"{total / count:,.0f}", f"{summary['file_bytes'] / count:,.0f}"])
     print(f"map       {args.dataset}: {summary['object_id']}, {summary['imprints']} imprints, format version "
           f"{summary['version']}")
     print(f"memory    {summary['loaded_bytes'] / count:,.0f} bytes per imprint as loaded (without images)")
+    print(f"surface   {'stored, ' + format(summary['surface_bytes'] / count, ',.0f') + ' bytes per imprint' if summary['surface_bytes'] else 'not stored (built when the map is loaded for localization)'}")
     print(f"symmetry  {_map_symmetry(args.dataset)}")
     print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:

@@ -83,7 +83,7 @@ def run(args) -> int:
     from tactojax.cli._table import format_table, write_json
     from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
     from tactojax.hardware._live import PoseLookup
-    from tactojax.io import expand_catalogs, resolve_shape_model
+    from tactojax.io import expand_catalogs, resolve_shape_model, stored_surface
     from tactojax.localize import LiveSettings, Localizer, Tracker
 
     if args.opening is not None and (not np.isfinite(args.opening) or args.opening <= 0):
@@ -100,6 +100,7 @@ def run(args) -> int:
     # From a live camera, settled grasps update the belief in a worker thread, so that no frame
     # waits for it; a video file is read frame by frame, each update in its frame.
     localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
+                                                             surfaces=[stored_surface(p) for p in args.maps],
                                                              live=LiveSettings(background_update=not every_frame))
     print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
           f"{'' if args.no_tracking else ' (tracking between frames)'}")

@@ -68,9 +68,19 @@ def stored_calibration(path, encoder_name: str | None):
     return calibration_from_json(fit)
 
 
+def map_surface(path):
+    """The surface a map file stores (:func:`~tactojax.io.stored_surface`), else the settings to
+    build it with: what :meth:`~tactojax.localize.LocalizationMap.from_tactile_map` takes."""
+    from tactojax.io import stored_surface
+    from tactojax.localize import SurfaceSettings
+
+    surface = stored_surface(path)
+    return SurfaceSettings() if surface is None else surface
+
+
 def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = True):
-    """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration its file
-    stores (:func:`stored_calibration`); with ``shared`` and several maps, all under their median
+    """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration and the
+    surface its file stores (:func:`stored_calibration`, :func:`~tactojax.io.stored_surface`); with ``shared`` and several maps, all under their median
     (:func:`~tactojax.localize.shared_calibration`), so that their evidences compare (P(object));
     all padded to one shape (:func:`~tactojax.localize.shared_shapes`).
 
@@ -83,7 +93,8 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
     calibrated = any(c is not None for c in calibrations)
     if shared and len(maps) > 1:
         calibrations = [shared_calibration(calibrations)] * len(maps)
-    views = [LocalizationMap.from_tactile_map(m, calibration=c) for m, c in zip(maps, calibrations)]
+    views = [LocalizationMap.from_tactile_map(m, calibration=c, surface=map_surface(path))
+             for path, m, c in zip(paths, maps, calibrations)]
     # One shape for all maps: the belief compiles once, not once per map.
     return shared_shapes(views), calibrated
 

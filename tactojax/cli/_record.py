@@ -105,7 +105,7 @@ def _run_active(args, spec) -> int:
     from tactojax.cli._maps import maps_and_query_encoder, stored_calibration
     from tactojax.cli._table import write_json
     from tactojax.hardware import Recorder
-    from tactojax.io import resolve_shape_model
+    from tactojax.io import resolve_shape_model, stored_surface
     from tactojax.objects import resolve_object
 
     if not args.simulate:
@@ -117,6 +117,7 @@ def _run_active(args, spec) -> int:
     source = {"simulated": obj.name, "gripper": "WSG-50 emulator over TCP", "pose": "UDP", "active": list(args.active)}
     with Recorder(args.out, spec, source=source) as recorder:
         report = run_simulated_active(spec, obj, maps, model, encoder, calibrations=calibrations,
+                                      surfaces=[stored_surface(path) for path in args.active],
                                       turn_deg=args.turn_deg, max_grasps=args.max_grasps, candidates=args.candidates,
                                       stop=args.stop, seed=args.seed, recorder=recorder,
                                       object_id=args.object_id or obj.name, figure=args.figure)

@@ -35,6 +35,7 @@ from tactojax.io._map import maps_encoder_name as maps_encoder_name
 from tactojax.io._map import read_grasps as read_grasps
 from tactojax.io._map import save_tactile_map as save_tactile_map
 from tactojax.io._map import stored_features_encoder as stored_features_encoder
+from tactojax.io._map import stored_surface as stored_surface
 from tactojax.io._map import tactile_map_bytes as tactile_map_bytes
 from tactojax.io._map import tactile_map_metadata as tactile_map_metadata
 from tactojax.io._map import update_tactile_map_metadata as update_tactile_map_metadata
@@ -151,6 +152,7 @@ __all__ = [
     "save_train_state",
     "shape_model_metadata",
     "stored_features_encoder",
+    "stored_surface",
     "tactile_map_bytes",
     "tactile_map_metadata",
     "taxim_calibration_dir",

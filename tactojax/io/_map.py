@@ -11,6 +11,13 @@ contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor
 ``imprint_valid`` (K,) bool; and, only when kept, ``images`` (K, H, W, 3) uint8. The metadata's
 ``features_encoder`` names the encoder of the stored features.
 
+The map's surface (:class:`~tactojax.localize.MapSurface`, what localization reads; optional, maps
+written before it have none): ``surface_blocks`` (N, 5, 5, 5) float32 signed distances, mm (NaN:
+unknown), ``surface_block_index`` (I, J, K) int32, and the header's ``"surface"``:
+``{"origin_mm": [x, y, z], "settings": {"pitch_mm", "reach_mm", "margin_mm", "min_depth_mm"}}``.
+It is built from the stored imprints when the map is saved, so that loading a map for
+localization reads it instead of building it again (1-4 s a map).
+
 Version 1 (read, converted on loading): ``images``; ``heightmaps`` (K, H, W) float32; ``masks``
 (K, H, W) bool; ``points``/``normals`` (K, P, 3) float32, sensor frame (points on the pixel grid);
 and ``valid``, ``T_object_sensor``, ``openings``, ``features``, ``imprint_valid`` as in version 2.
@@ -29,11 +36,12 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from tactojax.storage._atomic import atomic_open
-from tactojax.storage._dataset import open_dataset
+from tactojax.localize import MapSurface, SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap, pack_heightmaps, points_to_pixels, stitched_point_cloud
 from tactojax.objects import ObjectSymmetry
 from tactojax.simulate import symmetry_key
+from tactojax.storage._atomic import atomic_open
+from tactojax.storage._dataset import open_dataset
 
 MAP_FORMAT = "tactojax-tactile-map"
 MAP_VERSION = 2
@@ -47,13 +55,14 @@ _DTYPES = {
     2: {"packed_heightmaps": np.float16, "point_pixels": [np.uint16, np.int32], **_COMMON},
 }
 _OPTIONAL = {"images": np.uint8}  # version 2
+_SURFACE = {"surface_blocks": np.float32, "surface_block_index": np.int32}
 
 
 class CorruptMapError(ValueError):
     """A file that is not a readable tactojax tactile map."""
 
 
-def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = None) -> Path:
+def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = None, surface: bool = True) -> Path:
     """Write a map atomically in the compact format (see the module docstring), with its images
     when it holds them.
 
@@ -61,6 +70,9 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
         path: destination ``.npz`` file.
         tactile_map: the map.
         metadata: JSON-serialisable notes kept with it (source data, model, settings).
+        surface: also store the map's surface (built now with the default
+            :class:`~tactojax.localize.SurfaceSettings`, 1-4 s a map on the host), which
+            :func:`load_localization_map` then reads instead of building it.
     """
     header = {"format": MAP_FORMAT, "version": MAP_VERSION, "object_id": tactile_map.object_id,
               "mm_per_px": tactile_map.mm_per_px, "sensor": tactile_map.sensor,
@@ -72,21 +84,27 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     arrays["T_object_sensor"] = np.asarray(tactile_map.T_object_sensor.wxyz_xyz, np.float32)
     if tactile_map.images is not None:
         arrays["images"] = np.asarray(tactile_map.images, np.uint8)
+    if surface:
+        header["surface"], surface_arrays = _surface_entry(build_map_surface(tactile_map, SurfaceSettings()))
+        arrays.update(surface_arrays)
     path = Path(path)
     with atomic_open(path, "wb") as handle:
         np.savez_compressed(handle, header=np.array(json.dumps(header)), **arrays)
     return path
 
 
-def _read_npz(path: Path, *, arrays: bool = True, images: bool = True) -> tuple[dict, dict[str, np.ndarray]]:
+def _read_npz(path: Path, *, arrays: bool = True, images: bool = True,
+              surface: bool = False) -> tuple[dict, dict[str, np.ndarray]]:
     """(header, arrays) of a map file; ``arrays=False`` reads only the header (no decompression
-    of the images and heightmaps), ``images=False`` all but the images."""
+    of the images and heightmaps), ``images=False`` all but the images, ``surface=True`` only
+    the surface's arrays (without, all but those)."""
     if not path.is_file():
         raise FileNotFoundError(f"no tactile map at {path}")
     try:
         with np.load(path, allow_pickle=False) as npz:
             header = json.loads(str(npz["header"]))
-            wanted = [name for name in npz.files if name != "header" and (images or name != "images")]
+            wanted = [name for name in npz.files if name != "header" and (images or name != "images")
+                      and (name in _SURFACE) == surface]
             contents = {name: npz[name] for name in wanted} if arrays else {}
     except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError) as error:
         raise CorruptMapError(f"{path} is not a readable tactile map ({error})") from None
@@ -161,6 +179,40 @@ def load_tactile_map(path, *, images: bool = False) -> TactileMap:
                       symmetry=ObjectSymmetry.from_json(header["symmetry"]) if "symmetry" in header else None)
 
 
+def _surface_entry(surface: MapSurface) -> tuple[dict, dict[str, np.ndarray]]:
+    """The header entry and arrays that store a map's surface (see the module docstring)."""
+    settings = SurfaceSettings()
+    entry = {"origin_mm": np.asarray(surface.origin, np.float64).tolist(),
+             "settings": {name: float(getattr(settings, name)) for name in SurfaceSettings.__dataclass_fields__}}
+    return entry, {"surface_blocks": np.asarray(surface.blocks, np.float32),
+                   "surface_block_index": np.asarray(surface.block_index, np.int32)}
+
+
+def stored_surface(path, settings: SurfaceSettings = SurfaceSettings()) -> MapSurface | None:
+    """The surface a map file stores (:func:`save_tactile_map`), or None when it stores none or
+    one built with other settings than ``settings`` (then build it:
+    :func:`~tactojax.localize.build_map_surface`).
+
+    Raises:
+        CorruptMapError: the stored surface's arrays are missing, of the wrong type or disagree.
+    """
+    path = Path(path)
+    header, arrays = _read_npz(path, surface=True)
+    entry = header.get("surface")
+    wanted = {name: float(getattr(settings, name)) for name in SurfaceSettings.__dataclass_fields__}
+    if entry is None or entry.get("settings") != wanted:
+        return None
+    if set(arrays) != set(_SURFACE) or any(arrays[name].dtype != dtype for name, dtype in _SURFACE.items()):
+        raise CorruptMapError(f"{path}: the stored surface's arrays are missing or of the wrong type")
+    blocks, index = arrays["surface_blocks"], arrays["surface_block_index"]
+    side = blocks.shape[1:] if blocks.ndim == 4 else None
+    if (side is None or len(set(side)) != 1 or index.ndim != 3 or len(blocks) == 0 or index.min() < 0
+            or index.max() >= len(blocks) or len(entry.get("origin_mm", ())) != 3):
+        raise CorruptMapError(f"{path}: the stored surface's blocks {blocks.shape} and index {index.shape} disagree")
+    return MapSurface(blocks=jnp.asarray(blocks), block_index=jnp.asarray(index),
+                      origin=jnp.asarray(entry["origin_mm"], jnp.float32), pitch_mm=settings.pitch_mm)
+
+
 def stored_features_encoder(header: dict) -> str | None:
     """The encoder of the features a map file stores (recorded by ``tactojax map`` or
     ``calibrate-belief``), or None when they are of unknown origin or absent."""
@@ -208,7 +260,8 @@ def load_tactile_map_with_features(path, encoder_name: str, *, progress: bool = 
 def load_localization_map(path, *, encoder_name: str | None = None, progress: bool = False):
     """A map file as localization reads it (:class:`~tactojax.localize.LocalizationMap`: its
     imprints with their retrieval features, its surface, the object's symmetries), with the
-    belief calibration its header stores (``tactojax calibrate-belief``; uncalibrated without one).
+    belief calibration its header stores (``tactojax calibrate-belief``; uncalibrated without one)
+    and its stored surface (:func:`stored_surface`; built now for a map that stores none).
 
     Args:
         path: a map written by :func:`save_tactile_map` (``tactojax map``).
@@ -225,7 +278,9 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     fit = header.get("metadata", {}).get("belief_calibration")
     usable = fit is not None and encoder_label(fit.get("encoder", DEFAULT_ENCODER)) == encoder_name
     tactile_map = load_tactile_map_with_features(path, encoder_name, progress=progress)
-    return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None)
+    surface = stored_surface(path)
+    return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None,
+                                            surface=SurfaceSettings() if surface is None else surface)
 
 
 def compact_tactile_map(source, destination, *, keep_images: bool = False, progress: bool = False) -> Path:
@@ -260,18 +315,21 @@ def tactile_map_bytes(path) -> dict:
 
     Returns:
         ``{"object_id", "version", "imprints", "file_bytes", "memory_bytes", "loaded_bytes",
-        "fields": {name: {"memory", "disk"}}}`` (bytes; ``loaded_bytes``: the map as loaded now,
-        without images).
+        "surface_bytes", "fields": {name: {"memory", "disk"}}}`` (bytes; ``memory_bytes``: the
+        map's arrays, ``loaded_bytes``: the map as loaded now, without images, ``surface_bytes``:
+        the stored surface, 0 without one; ``fields`` lists the surface's arrays too).
     """
     path = Path(path)
     header, arrays = _read_npz(path)
+    _, surface = _read_npz(path, surface=True)
     with zipfile.ZipFile(path) as archive:
         disk = {Path(info.filename).stem: info.compress_size for info in archive.infolist()}
-    fields = {name: {"memory": int(value.nbytes), "disk": disk.get(name)} for name, value in arrays.items()}
+    fields = {name: {"memory": int(value.nbytes), "disk": disk.get(name)} for name, value in {**arrays, **surface}.items()}
     loaded = load_tactile_map(path)
     return {"object_id": header["object_id"], "version": int(header["version"]), "imprints": len(loaded),
-            "file_bytes": path.stat().st_size, "memory_bytes": sum(f["memory"] for f in fields.values()),
-            "loaded_bytes": sum(int(x.nbytes) for x in jax.tree.leaves(loaded)), "fields": fields}
+            "file_bytes": path.stat().st_size, "memory_bytes": sum(fields[name]["memory"] for name in arrays),
+            "loaded_bytes": sum(int(x.nbytes) for x in jax.tree.leaves(loaded)),
+            "surface_bytes": sum(fields[name]["memory"] for name in surface), "fields": fields}
 
 
 def update_tactile_map_metadata(path, metadata: dict) -> Path:

@@ -43,6 +43,7 @@ from tactojax.localize._map import shared_shapes as shared_shapes
 from tactojax.localize._map import Touch as Touch
 from tactojax.localize._surface import MapSurface as MapSurface
 from tactojax.localize._surface import SurfaceSettings as SurfaceSettings
+from tactojax.localize._surface import build_map_surface as build_map_surface
 from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
@@ -64,6 +65,7 @@ __all__ = [
     "Tracker",
     "TrackingSettings",
     "belief_digest",
+    "build_map_surface",
     "calibration_from_json",
     "calibration_to_json",
     "empty_belief",

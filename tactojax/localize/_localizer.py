@@ -51,6 +51,7 @@ from tactojax.localize._identify_episodes import object_probabilities, shared_ca
 from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
 from tactojax.localize._predict_touch import MarchingGrid, map_marching_grid
+from tactojax.localize._surface import MapSurface, SurfaceSettings
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
@@ -256,24 +257,31 @@ class Localizer:
         calibrations: each map's belief calibration (``tactojax calibrate-belief``; None:
             uncalibrated). With several maps all beliefs run under their median
             (:func:`~tactojax.localize.shared_calibration`), so that P(object) compares them.
+        surfaces: each map's surface when built before (a map file stores its own:
+            :func:`~tactojax.io.stored_surface`); None, or a None entry: built now (1-4 s a map).
         settings: the belief's parameters.
         live: when a grasp counts as settled.
     """
 
     def __init__(self, maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder, *,
                  calibrations: Sequence[BeliefCalibration | None] | None = None,
+                 surfaces: Sequence[MapSurface | None] | None = None,
                  settings: BeliefSettings = BeliefSettings(), live: LiveSettings = LiveSettings()):
         maps = check_maps(maps, model, encoder)
         calibrations = [None] * len(maps) if calibrations is None else list(calibrations)
         if len(calibrations) != len(maps):
             raise ValueError(f"{len(maps)} maps but {len(calibrations)} calibrations")
+        surfaces = [None] * len(maps) if surfaces is None else list(surfaces)
+        if len(surfaces) != len(maps):
+            raise ValueError(f"{len(maps)} maps but {len(surfaces)} surfaces")
         if len(maps) > 1:
             calibrations = [shared_calibration(calibrations)] * len(maps)
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
         self.settings, self.live = settings, live
-        self.views = tuple(shared_shapes([LocalizationMap.from_tactile_map(m, calibration=c)
-                                          for m, c in zip(maps, calibrations)]))
+        self.views = tuple(shared_shapes([
+            LocalizationMap.from_tactile_map(m, calibration=c, surface=SurfaceSettings() if s is None else s)
+            for m, c, s in zip(maps, calibrations, surfaces)]))
         start = time.perf_counter()
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
         # On the device once (a model of NumPy arrays would be copied to an accelerator every frame).

@@ -104,7 +104,7 @@ class LocalizationMap:
     def from_tactile_map(tactile_map: TactileMap, *, calibration: BeliefCalibration | None = None,
                          symmetries: jaxlie.SE3 | None = None,
                          continuous_symmetry: tuple[Float[Array, "3"], Float[Array, "3"]] | None = None,
-                         surface: SurfaceSettings = SurfaceSettings(),
+                         surface: SurfaceSettings | MapSurface = SurfaceSettings(),
                          points_per_imprint: int = MAP_POINTS) -> LocalizationMap:
         """The localization view of a :class:`~tactojax.mapping.TactileMap` (builds its surface
         on the host: about 1-4 s for the catalog maps).
@@ -120,24 +120,29 @@ class LocalizationMap:
             continuous_symmetry: ``(axis, centre)``, the unit axis of the object's continuous
                 rotational symmetry and a point on it (object frame, mm); zeros for none
                 (default: the map's, as ``symmetries``).
-            surface: how the surface grid is built.
+            surface: how the surface grid is built, or the grid itself, built before from
+                this map (:func:`build_map_surface`; a map file stores its own,
+                :func:`~tactojax.io.stored_surface`), which saves rebuilding it.
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
         """
+        # On the host (NumPy, and decoding in fixed chunks): nothing here compiles per map size,
+        # so a catalog of maps of many sizes builds in a time that grows with its imprints only.
         count = min(points_per_imprint, tactile_map.valid.shape[1])
-        points_valid = tactile_map.valid[:, :count]
-        all_points, all_normals, all_valid = tactile_map.points_object, tactile_map.normals_object, tactile_map.valid
-        points, normals = all_points[:, :count], all_normals[:, :count]
-        centres = (jnp.sum(jnp.where(all_valid[..., None], all_points, 0.0), axis=1)
-                   / jnp.maximum(jnp.sum(all_valid, axis=1), 1)[:, None])
-        features = tactile_map.features
-        features = features / jnp.maximum(jnp.linalg.norm(features, axis=-1, keepdims=True), 1e-12)
+        geometry = tactile_map.host_geometry()
+        all_valid = np.asarray(tactile_map.valid)
+        all_points = geometry["points_object"]
+        centres = (np.sum(np.where(all_valid[..., None], all_points, 0.0), axis=1)
+                   / np.maximum(np.sum(all_valid, axis=1), 1)[:, None]).astype(np.float32)
+        features = np.asarray(tactile_map.features, np.float32)
+        features = features / np.maximum(np.linalg.norm(features, axis=-1, keepdims=True), 1e-12)
         view = LocalizationMap(
             packed_heightmaps=tactile_map.packed_heightmaps,
             T_object_sensor=tactile_map.T_object_sensor, openings=tactile_map.openings,
-            features=features, imprint_valid=tactile_map.imprint_valid,
-            points=points, normals=normals, points_valid=points_valid, centres=centres,
-            surface=build_map_surface(tactile_map, surface),
+            features=jnp.asarray(features), imprint_valid=tactile_map.imprint_valid,
+            points=jnp.asarray(all_points[:, :count]), normals=jnp.asarray(geometry["normals_object"][:, :count]),
+            points_valid=jnp.asarray(all_valid[:, :count]), centres=jnp.asarray(centres),
+            surface=surface if isinstance(surface, MapSurface) else build_map_surface(tactile_map, surface, geometry=geometry),
             symmetries=tactile_map.object_symmetry.copies() if symmetries is None else symmetries,
             **_continuous_symmetry(tactile_map.object_symmetry, continuous_symmetry),
             calibration=BeliefCalibration.default() if calibration is None else calibration,
@@ -169,16 +174,17 @@ class LocalizationMap:
         if extra <= 0:
             return self
 
-        def pad(x):  # (packed heightmaps: -0.0 is off contact)
-            fill = -0.0 if x.dtype == jnp.float16 else 0
-            return jnp.concatenate([x, jnp.full((extra, *x.shape[1:]), fill, x.dtype)])
+        def pad(x):  # on the host (no program per map size); packed heightmaps: -0.0 is off contact
+            x = np.asarray(x)
+            fill = -0.0 if x.dtype == np.float16 else 0
+            return jnp.asarray(np.concatenate([x, np.full((extra, *x.shape[1:]), fill, x.dtype)]))
 
-        own = len(self)
         per_imprint = self.replace(T_object_sensor=jaxlie.SE3(self.T_object_sensor.wxyz_xyz), surface=None,
                                    symmetries=None, symmetry_axis=None, symmetry_centre=None, calibration=None)
         view = jax.tree.map(pad, per_imprint)
-        identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (extra, 7))
-        return view.replace(T_object_sensor=jaxlie.SE3(view.T_object_sensor.wxyz_xyz.at[own:].set(identity)),
+        poses = np.array(view.T_object_sensor.wxyz_xyz)
+        poses[len(self):] = np.asarray(jaxlie.SE3.identity().wxyz_xyz)
+        return view.replace(T_object_sensor=jaxlie.SE3(jnp.asarray(poses)),
                             surface=self.surface, symmetries=self.symmetries, symmetry_axis=self.symmetry_axis,
                             symmetry_centre=self.symmetry_centre, calibration=self.calibration)
 
@@ -284,9 +290,9 @@ def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
     copies = max(v.symmetries.wxyz_xyz.shape[0] for v in views)
 
     def extended(view: LocalizationMap) -> LocalizationMap:
-        symmetries = view.symmetries.wxyz_xyz
-        identity = jnp.broadcast_to(jaxlie.SE3.identity().wxyz_xyz, (copies - symmetries.shape[0], 7))
+        symmetries = np.asarray(view.symmetries.wxyz_xyz)
+        identity = np.broadcast_to(np.asarray(jaxlie.SE3.identity().wxyz_xyz), (copies - symmetries.shape[0], 7))
         return view.padded_to(count).replace(surface=view.surface.padded_to(grid, blocks),
-                                             symmetries=jaxlie.SE3(jnp.concatenate([symmetries, identity])))
+                                             symmetries=jaxlie.SE3(jnp.asarray(np.concatenate([symmetries, identity]))))
 
     return [extended(view) for view in views]

@@ -114,9 +114,11 @@ class MapSurface:
         """The surface on a grid of ``blocks_shape`` blocks (extended on its far sides with
         unknown ones) holding ``count`` blocks (unknown ones added): maps padded to one shape
         compile once."""
-        index = jnp.pad(self.block_index, [(0, n - m) for n, m in zip(blocks_shape, self.block_index.shape)])
-        extra = jnp.broadcast_to(self.blocks[:1], (count - self.blocks.shape[0], *self.blocks.shape[1:]))
-        return self.replace(blocks=jnp.concatenate([self.blocks, extra]), block_index=index)
+        # On the host: no program per map size.
+        index = np.pad(np.asarray(self.block_index), [(0, n - m) for n, m in zip(blocks_shape, self.block_index.shape)])
+        blocks = np.asarray(self.blocks)
+        extra = np.broadcast_to(blocks[:1], (count - blocks.shape[0], *blocks.shape[1:]))
+        return self.replace(blocks=jnp.asarray(np.concatenate([blocks, extra])), block_index=jnp.asarray(index))
 
     def signed_distance(self, p_object: Float[Array, "*batch 3"], *, interpolate: bool = True
                         ) -> tuple[Float[Array, "*batch"], Bool[Array, "*batch"]]:
@@ -156,7 +158,8 @@ class MapSurface:
 
 
 def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = SurfaceSettings(), *,
-                      exclude: int | np.ndarray = -1, grid_like: MapSurface | None = None) -> MapSurface:
+                      exclude: int | np.ndarray = -1, grid_like: MapSurface | None = None,
+                      geometry: dict[str, np.ndarray] | None = None) -> MapSurface:
     """The signed-distance grid of a map's stored contact points (see the module docstring).
 
     Args:
@@ -168,6 +171,8 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
         grid_like: build on this surface's grid (origin, shape and pitch), padded to its count
             of stored blocks where it needs no more: a surface of the same map without some
             imprints then has the same shapes (no recompilation).
+        geometry: the map's :meth:`~tactojax.mapping.TactileMap.host_geometry`, when decoded
+            before (else decoded now).
 
     Returns:
         the :class:`MapSurface` (an empty map gives a one-cell grid that knows nothing).
@@ -175,14 +180,15 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
     from scipy.ndimage import binary_dilation
     from scipy.spatial import cKDTree
 
-    depth = -np.asarray(tactile_map.points)[..., 2]  # a sensor-frame contact point sits at z = -indentation
-    valid = np.asarray(tactile_map.point_valid) & (depth >= settings.min_depth_mm)
+    geometry = tactile_map.host_geometry() if geometry is None else geometry
+    depth = -geometry["points"][..., 2]  # a sensor-frame contact point sits at z = -indentation
+    valid = np.asarray(tactile_map.valid) & np.asarray(tactile_map.imprint_valid)[:, None] & (depth >= settings.min_depth_mm)
     if np.ndim(exclude) == 1:
         valid[np.asarray(exclude, bool)] = False
     elif exclude >= 0:
         valid[exclude] = False
-    points = np.asarray(tactile_map.points_object, np.float64)[valid]
-    normals = np.asarray(tactile_map.normals_object, np.float64)[valid]
+    points = geometry["points_object"].astype(np.float64)[valid]
+    normals = geometry["normals_object"].astype(np.float64)[valid]
     pitch = settings.pitch_mm
     if len(points) == 0:
         if grid_like is not None:  # its shapes, every block pointing to the unknown one

@@ -53,6 +53,7 @@ from tactojax.localize._localizer import Frame, LiveEstimate, Localizer, LiveSet
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
 from tactojax.localize._pose import PoseEstimate
+from tactojax.localize._surface import MapSurface
 from tactojax.mapping import TactileMap
 from tactojax.shape import ShapeModel
 
@@ -204,16 +205,18 @@ class Tracker:
     thread-safe: give each thread its own.
 
     Args:
-        maps, model, encoder, calibrations, settings, live: as :class:`~tactojax.localize.Localizer`.
+        maps, model, encoder, calibrations, surfaces, settings, live: as :class:`~tactojax.localize.Localizer`.
         tracking: how the pose is followed.
         icp: the tracked registration's parameters.
     """
 
     def __init__(self, maps: Sequence[TactileMap], model: ShapeModel, encoder: Encoder, *,
                  calibrations: Sequence[BeliefCalibration | None] | None = None,
+                 surfaces: Sequence[MapSurface | None] | None = None,
                  settings: BeliefSettings = BeliefSettings(), live: LiveSettings = LiveSettings(),
                  tracking: TrackingSettings = TrackingSettings(), icp: IcpSettings = IcpSettings()):
-        self.localizer = Localizer(maps, model, encoder, calibrations=calibrations, settings=settings, live=live)
+        self.localizer = Localizer(maps, model, encoder, calibrations=calibrations, surfaces=surfaces,
+                                   settings=settings, live=live)
         """The localizer that finds the pose the track starts from (its belief)."""
         self.tracking = tracking
         self.object_ids, self.image_shape = self.localizer.object_ids, self.localizer.image_shape

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 from jaxtyping import Array, Bool, Float, Float16, Int, UInt8
 
 from tactojax import _struct as struct
@@ -13,6 +16,15 @@ from tactojax.objects import ObjectSymmetry, object_symmetry
 
 
 _decode_points = jax.jit(jax.vmap(pixel_points, in_axes=(0, 0, None)), static_argnums=2)
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _decode_in_object_frame(packed, pixels, wxyz_xyz, mm_per_px: float):
+    """Imprints' points and normals in the sensor frame, then in the object frame."""
+    points, normals = jax.vmap(pixel_points, in_axes=(0, 0, None))(packed, pixels, mm_per_px)
+    T = jaxlie.SE3(wxyz_xyz)
+    return (points, normals, jax.vmap(lambda T, p: T @ p)(T, points),
+            jax.vmap(lambda T, n: T.rotation() @ n)(T, normals))
 
 
 @struct.dataclass
@@ -121,6 +133,27 @@ class TactileMap:
     def normals_object(self) -> Float[Array, "K P 3"]:
         """Unit normals in the map (object) frame."""
         return jax.vmap(lambda T, n: T.rotation() @ n)(self.T_object_sensor, self.normals)
+
+    def host_geometry(self, chunk: int = 64) -> dict[str, np.ndarray]:
+        """The decoded contact points as NumPy arrays, computed ``chunk`` imprints at a time (the
+        last chunk padded): one compilation serves every map of one image size and point count,
+        where the properties compile once per map size K (a catalog of maps of different sizes
+        would compile one program per map).
+
+        Returns:
+            ``{"points", "normals"}`` (K, P, 3) in the sensor frame and ``{"points_object",
+            "normals_object"}`` (K, P, 3) in the object frame, float32, mm.
+        """
+        count, parts = len(self), []
+        arrays = [np.asarray(x) for x in (self.packed_heightmaps, self.point_pixels, self.T_object_sensor.wxyz_xyz)]
+        for start in range(0, count, chunk):
+            index = np.minimum(np.arange(start, start + chunk), count - 1)  # host indexing: no program per K
+            outputs = _decode_in_object_frame(*(jnp.asarray(x[index]) for x in arrays), self.mm_per_px)
+            parts.append([np.asarray(x)[:min(chunk, count - start)] for x in outputs])
+        names = ("points", "normals", "points_object", "normals_object")
+        if not parts:
+            return {name: np.zeros((0, self.valid.shape[1], 3), np.float32) for name in names}
+        return {name: np.concatenate(column) for name, column in zip(names, zip(*parts))}
 
     @property
     def point_valid(self) -> Bool[Array, "K P"]:

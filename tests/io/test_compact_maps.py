@@ -9,9 +9,10 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.io import (MAP_VERSION, compact_tactile_map, load_tactile_map, save_tactile_map, tactile_map_bytes,
-                         tactile_map_metadata, update_tactile_map_metadata)
-from tactojax.localize import LocalizationMap
+from tactojax.io import (MAP_VERSION, CorruptMapError, compact_tactile_map, load_localization_map, load_tactile_map,
+                         save_tactile_map, stored_surface, tactile_map_bytes, tactile_map_metadata,
+                         update_tactile_map_metadata)
+from tactojax.localize import LocalizationMap, SurfaceSettings, build_map_surface
 from tactojax.mapping import TactileMap, pack_heightmaps, pixel_index_dtype, sample_contact_pixels
 from tactojax.objects import NO_SYMMETRY, ObjectSymmetry
 
@@ -191,3 +192,34 @@ def test_a_metadata_update_leaves_every_array_and_the_version(tiny_map, tmp_path
         for name, value in arrays.items():
             np.testing.assert_array_equal(after[name], value)
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_the_stored_surface_is_the_one_localization_builds_and_is_read_instead(tiny_map, tmp_path, monkeypatch):
+    tactile_map, _, _ = tiny_map
+    path = save_tactile_map(tmp_path / "map.npz", tactile_map)
+    built = build_map_surface(load_tactile_map(path))
+    stored = stored_surface(path)
+    for name in ("blocks", "block_index", "origin"):
+        np.testing.assert_array_equal(np.asarray(getattr(stored, name)), np.asarray(getattr(built, name)))
+    assert stored.pitch_mm == built.pitch_mm and stored.blocks.dtype == built.blocks.dtype
+    assert stored_surface(path, SurfaceSettings(reach_mm=2.0)) is None  # other settings: build anew
+    # Loading for localization reads it: building one would fail here.
+    monkeypatch.setattr("tactojax.localize._map.build_map_surface", lambda *a, **k: pytest.fail("surface rebuilt"))
+    view = load_localization_map(path)
+    np.testing.assert_array_equal(np.asarray(view.surface.blocks), np.asarray(built.blocks))
+    assert tactile_map_bytes(path)["surface_bytes"] == built.blocks.nbytes + built.block_index.nbytes
+
+
+def test_a_map_without_a_stored_surface_builds_it_and_a_bad_one_is_refused(tiny_map, tmp_path):
+    tactile_map, _, _ = tiny_map
+    path = save_tactile_map(tmp_path / "map.npz", tactile_map, surface=False)
+    assert stored_surface(path) is None and tactile_map_bytes(path)["surface_bytes"] == 0
+    view = load_localization_map(path)
+    np.testing.assert_array_equal(np.asarray(view.surface.blocks), np.asarray(build_map_surface(tactile_map).blocks))
+    stored = save_tactile_map(tmp_path / "stored.npz", tactile_map)
+    with np.load(stored) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    arrays["surface_block_index"] = arrays["surface_block_index"] + len(arrays["surface_blocks"])  # past the blocks
+    np.savez_compressed(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(CorruptMapError, match="stored surface"):
+        stored_surface(tmp_path / "bad.npz")

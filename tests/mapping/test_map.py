@@ -97,7 +97,7 @@ def test_save_load_round_trip_and_clear_errors(cylinder_map, tmp_path):
     with pytest.raises(FileNotFoundError):
         load_tactile_map(tmp_path / "missing.npz")
     wrong = cylinder_map.replace(valid=cylinder_map.valid[:, :10])
-    save_tactile_map(tmp_path / "wrong.npz", wrong)
+    save_tactile_map(tmp_path / "wrong.npz", wrong, surface=False)  # a file whose arrays disagree
     with pytest.raises(CorruptMapError, match="valid"):
         load_tactile_map(tmp_path / "wrong.npz")
 
