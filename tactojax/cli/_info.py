@@ -97,7 +97,9 @@ def _map_bytes(args) -> int:
     print(f"map       {args.dataset}: {summary['object_id']}, {summary['imprints']} imprints, format version "
           f"{summary['version']}")
     print(f"memory    {summary['loaded_bytes'] / count:,.0f} bytes per imprint as loaded (without images)")
-    print(f"surface   {'stored, ' + format(summary['surface_bytes'] / count, ',.0f') + ' bytes per imprint' if summary['surface_bytes'] else 'not stored (built when the map is loaded for localization)'}")
+    surface = (f"stored, {summary['surface_bytes'] / count:,.0f} bytes per imprint" if summary["surface_bytes"]
+               else "not stored (built when the map is loaded for localization)")
+    print(f"surface   {surface}")
     print(f"symmetry  {_map_symmetry(args.dataset)}")
     print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:

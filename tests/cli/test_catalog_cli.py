@@ -8,7 +8,7 @@ import pytest
 from tactojax.cli import main
 from tactojax.cli._maps import maps_and_query_encoder
 from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, maps_encoder_name, read_catalog,
-                         save_shape_model, save_tactile_map, tactile_map_metadata)
+                         save_shape_model, save_tactile_map, stored_surface, tactile_map_metadata)
 from tactojax.objects import get_object
 
 
@@ -49,6 +49,12 @@ def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_en
     # The catalog stands for its maps: identification among them (leave-one-out retrieval).
     assert main(["identify", str(out), "--json", str(tmp_path / "id.json"), "--figure", str(tmp_path / "id.png")]) == 0
     assert json.loads((tmp_path / "id.json").read_text())["objects"] == ["cylinder", "gum_box"]
+
+    # Each map stores its surface, which localization reads instead of building it anew.
+    assert stored_surface(out / "gum_box.npz") is not None
+    capsys.readouterr()
+    assert main(["info", str(out / "gum_box.npz")]) == 0
+    assert "surface   stored" in capsys.readouterr().out
 
     # The maps record their encoder, and the commands encode new touches with it by default.
     assert tactile_map_metadata(out / "cylinder.npz")["metadata"]["features_encoder"] == encoder_label(tiny_encoder_path)
