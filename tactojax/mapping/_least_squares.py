@@ -104,6 +104,20 @@ class _State:
     converged: Bool[Array, ""]
 
 
+def _marquardt_step(jacobian: Float[Array, "N P"], residuals: Float[Array, "N"], weights: Float[Array, "N"],
+                    damping: Float[Array, ""]) -> tuple[Float[Array, "P"], Float[Array, "P"]]:
+    """One Levenberg-Marquardt step of weighted least squares (IRLS weights, the damping
+    relative to the normal matrix's diagonal, floored so that a parameter the residuals do not
+    see gets a finite step): ``(delta, gradient)``, the step (zero where the solve is not
+    finite) and the weighted gradient ``J^T W r``."""
+    hessian = jacobian.T @ (weights[:, None] * jacobian)
+    gradient = jacobian.T @ (weights * residuals)
+    diagonal = jnp.diagonal(hessian)
+    diagonal = jnp.maximum(diagonal, 1e-9 * jnp.max(diagonal) + 1e-20)
+    delta = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), -gradient)
+    return jnp.where(jnp.all(jnp.isfinite(delta)), delta, 0.0), gradient
+
+
 def solve_least_squares(
     residual_fn: Callable[[Any], Float[Array, "N"]],
     theta0: Any,
@@ -193,16 +207,11 @@ def solve_least_squares(
                             jnp.where(accept, state.damping / 3.0, state.damping * 4.0))
         damping = jnp.clip(damping, _MIN_DAMPING, _MAX_DAMPING)
 
-        # Next trial from the best point: IRLS-weighted, Marquardt-damped normal equations.
-        w = mask_weights * robust_weights(residuals, scale, loss)
-        hessian = jacobian.T @ (w[:, None] * jacobian)
-        gradient = jacobian.T @ (w * residuals)
-        diagonal = jnp.diagonal(hessian)
-        diagonal = jnp.maximum(diagonal, 1e-9 * jnp.max(diagonal) + 1e-20)
+        # Next trial from the best point.
+        delta, gradient = _marquardt_step(jacobian, residuals, mask_weights * robust_weights(residuals, scale, loss),
+                                          damping)
         stationary = (jnp.max(jnp.abs(gradient) * (jnp.abs(theta) + 1.0))
                       <= gradient_tolerance * jnp.maximum(cost, 1e-30))
-        delta = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), -gradient)
-        delta = jnp.where(jnp.all(jnp.isfinite(delta)), delta, 0.0)
 
         failed = ~jnp.isfinite(cost)  # not even theta0 gave a finite cost
         converged = ~failed & (stationary | small_step | small_decrease)

@@ -217,13 +217,7 @@ def estimate_ball_radius(
     if count < 2:
         raise ValueError(f"estimating the ball radius needs at least 2 presses, got {count}")
     lower_bound = float(presses.contact_radii_mm.max())
-    if candidates_mm is None:
-        candidates = lower_bound * np.geomspace(1.01, 4.0, 30)
-    else:
-        candidates = np.unique(np.asarray(candidates_mm, np.float64).reshape(-1))
-        candidates = candidates[np.isfinite(candidates) & (candidates > lower_bound)]
-        if len(candidates) == 0:
-            raise ValueError(f"no candidate ball radius exceeds the largest contact radius {lower_bound:.4f} mm")
+    candidates = _candidate_radii(lower_bound, candidates_mm)
     folds = max(2, min(int(folds), count))
     pixels = [_contact_pixels(presses, index, rim_px) for index in range(count)]
     sizes = np.array([change.size for _, _, change in pixels], np.float64)
@@ -257,6 +251,18 @@ def estimate_ball_radius(
         "folds": folds,
     }
     return estimate, table
+
+
+def _candidate_radii(lower_bound: float, candidates_mm=None) -> np.ndarray:
+    """The ball radii to try, mm, sorted: those of ``candidates_mm`` above ``lower_bound`` (the
+    largest contact radius), or 30 geometrically spaced from 1.01 to 4 times it."""
+    if candidates_mm is None:
+        return lower_bound * np.geomspace(1.01, 4.0, 30)
+    candidates = np.unique(np.asarray(candidates_mm, np.float64).reshape(-1))
+    candidates = candidates[np.isfinite(candidates) & (candidates > lower_bound)]
+    if len(candidates) == 0:
+        raise ValueError(f"no candidate ball radius exceeds the largest contact radius {lower_bound:.4f} mm")
+    return candidates
 
 
 def _contact_pixels(
