@@ -46,8 +46,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 
 def run(args) -> int:
-    from tactojax.cli._maps import map_surface, maps_and_query_encoder, maps_encoder_name
-    from tactojax.io import (expand_catalogs, resolve_shape_model, tactile_map_metadata,
+    from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
+    from tactojax.io import (expand_catalogs, resolve_shape_model, stored_surface, tactile_map_metadata,
                              update_tactile_map_metadata)
     from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
     from tactojax.localize.evaluation import record_beliefs
@@ -63,7 +63,7 @@ def run(args) -> int:
         if args.fingers > recorded:
             raise ValueError(f"--fingers {args.fingers}: the calibration grasps of {tactile_map.object_id} "
                              f"record {recorded} finger per grasp (simulate them with --fingers 2)")
-        view = LocalizationMap.from_tactile_map(tactile_map, surface=map_surface(path))  # the first round: uncalibrated
+        view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(path))  # the first round: uncalibrated
         for _ in range(args.rounds):
             records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
             calibration, report = fit_calibration(records)

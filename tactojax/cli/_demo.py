@@ -225,7 +225,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     """Beyond the paper: the pose belief on new grasps, fused over the grasps of each episode."""
     import numpy as np
 
-    from tactojax.cli._maps import map_surface
+    from tactojax.io import stored_surface
     from tactojax.localize import LocalizationMap, Touch, localize
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.objects import get_object
@@ -248,7 +248,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
         simulate_to_dataset(dataset, jax.random.key(args.seed + 200 + index), spec, get_object(name), protocol,
                             progress=False)
         episodes, _ = load_test_episodes(dataset, name, model, encoder, progress=False)
-        view = LocalizationMap.from_tactile_map(tactile_map, surface=map_surface(out / "maps" / f"{name}.npz"))
+        view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(out / "maps" / f"{name}.npz"))
         symmetry = (view.symmetries, view.symmetry_axis, view.symmetry_centre)
         count = int(episodes.openings.shape[0])
         error, within = np.full((count, args.grasps), np.inf), np.zeros((count, args.grasps))

@@ -44,9 +44,9 @@ def run(args) -> int:
     import jax
     import numpy as np
 
-    from tactojax.cli._maps import map_surface, maps_and_query_encoder, stored_calibration
+    from tactojax.cli._maps import maps_and_query_encoder, stored_calibration
     from tactojax.features import encode_images
-    from tactojax.io import resolve_shape_model
+    from tactojax.io import resolve_shape_model, stored_surface
     from tactojax.localize import LocalizationMap
     from tactojax.localize.active import ActiveSettings
     from tactojax.localize._active_episodes import POLICIES, run_active_episodes
@@ -82,7 +82,7 @@ def run(args) -> int:
             raise ValueError(f"{path}: the map's sensor ({tactile_map.image_shape} px at "
                              f"{tactile_map.mm_per_px} mm/px) does not match the simulated one or the shape model")
         view = LocalizationMap.from_tactile_map(tactile_map, calibration=stored_calibration(path, args.encoder),
-                                                surface=map_surface(path))
+                                                surface=stored_surface(path))
         result = run_active_episodes(jax.random.key(args.seed), view, obj, spec, observe, episodes=args.episodes,
                                      max_grasps=args.max_grasps, policies=policies, candidates=args.candidates,
                                      turns_deg=args.turns_deg, settings=settings, progress=not args.no_progress)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tactojax.cli._maps import is_symmetric, map_surface, maps_and_query_encoder, stored_calibration
+from tactojax.cli._maps import is_symmetric, maps_and_query_encoder, stored_calibration
 from tactojax.cli._table import format_table, write_json
 
 
@@ -10,7 +10,7 @@ def run_new_grasps(args) -> int:
     import numpy as np
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
-    from tactojax.io import resolve_shape_model
+    from tactojax.io import resolve_shape_model, stored_surface
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import LocalizationMap
     from tactojax.localize.evaluation import evaluate_new_grasps
@@ -35,7 +35,7 @@ def run_new_grasps(args) -> int:
             episodes = jax.tree.map(lambda x: x[:, :args.touches], episodes)
         symmetric = is_symmetric(tactile_map)
         fit = stored_calibration(path, args.encoder) if "belief" in methods else None
-        view = LocalizationMap.from_tactile_map(tactile_map, calibration=fit, surface=map_surface(path))
+        view = LocalizationMap.from_tactile_map(tactile_map, calibration=fit, surface=stored_surface(path))
         results = evaluate_new_grasps(view, episodes, methods, fingers=args.fingers, progress=True)
         summaries = [r.summary(symmetric=symmetric) for r in results]
         for r, s in zip(results, summaries):

@@ -68,16 +68,6 @@ def stored_calibration(path, encoder_name: str | None):
     return calibration_from_json(fit)
 
 
-def map_surface(path):
-    """The surface a map file stores (:func:`~tactojax.io.stored_surface`), else the settings to
-    build it with: what :meth:`~tactojax.localize.LocalizationMap.from_tactile_map` takes."""
-    from tactojax.io import stored_surface
-    from tactojax.localize import SurfaceSettings
-
-    surface = stored_surface(path)
-    return SurfaceSettings() if surface is None else surface
-
-
 def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = True):
     """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration and the
     surface its file stores (:func:`stored_calibration`, :func:`~tactojax.io.stored_surface`); with ``shared`` and several maps, all under their median
@@ -87,13 +77,14 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
     Returns:
         (views, calibrated): the views, and whether any map holds a calibration.
     """
+    from tactojax.io import stored_surface
     from tactojax.localize import LocalizationMap, shared_calibration, shared_shapes
 
     calibrations = [stored_calibration(path, encoder_name) for path in paths]
     calibrated = any(c is not None for c in calibrations)
     if shared and len(maps) > 1:
         calibrations = [shared_calibration(calibrations)] * len(maps)
-    views = [LocalizationMap.from_tactile_map(m, calibration=c, surface=map_surface(path))
+    views = [LocalizationMap.from_tactile_map(m, calibration=c, surface=stored_surface(path))
              for path, m, c in zip(paths, maps, calibrations)]
     # One shape for all maps: the belief compiles once, not once per map.
     return shared_shapes(views), calibrated

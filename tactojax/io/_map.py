@@ -85,7 +85,8 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     if tactile_map.images is not None:
         arrays["images"] = np.asarray(tactile_map.images, np.uint8)
     if surface:
-        header["surface"], surface_arrays = _surface_entry(build_map_surface(tactile_map, SurfaceSettings()))
+        settings = SurfaceSettings()
+        header["surface"], surface_arrays = _surface_entry(build_map_surface(tactile_map, settings), settings)
         arrays.update(surface_arrays)
     path = Path(path)
     with atomic_open(path, "wb") as handle:
@@ -179,11 +180,15 @@ def load_tactile_map(path, *, images: bool = False) -> TactileMap:
                       symmetry=ObjectSymmetry.from_json(header["symmetry"]) if "symmetry" in header else None)
 
 
-def _surface_entry(surface: MapSurface) -> tuple[dict, dict[str, np.ndarray]]:
-    """The header entry and arrays that store a map's surface (see the module docstring)."""
-    settings = SurfaceSettings()
-    entry = {"origin_mm": np.asarray(surface.origin, np.float64).tolist(),
-             "settings": {name: float(getattr(settings, name)) for name in SurfaceSettings.__dataclass_fields__}}
+def _settings_json(settings: SurfaceSettings) -> dict[str, float]:
+    """The header's record of the settings a stored surface was built with."""
+    return {name: float(getattr(settings, name)) for name in SurfaceSettings.__dataclass_fields__}
+
+
+def _surface_entry(surface: MapSurface, settings: SurfaceSettings) -> tuple[dict, dict[str, np.ndarray]]:
+    """The header entry and arrays that store a map's surface, built with ``settings`` (see the
+    module docstring)."""
+    entry = {"origin_mm": np.asarray(surface.origin, np.float64).tolist(), "settings": _settings_json(settings)}
     return entry, {"surface_blocks": np.asarray(surface.blocks, np.float32),
                    "surface_block_index": np.asarray(surface.block_index, np.int32)}
 
@@ -199,8 +204,7 @@ def stored_surface(path, settings: SurfaceSettings = SurfaceSettings()) -> MapSu
     path = Path(path)
     header, arrays = _read_npz(path, surface=True)
     entry = header.get("surface")
-    wanted = {name: float(getattr(settings, name)) for name in SurfaceSettings.__dataclass_fields__}
-    if entry is None or entry.get("settings") != wanted:
+    if entry is None or entry.get("settings") != _settings_json(settings):
         return None
     if set(arrays) != set(_SURFACE) or any(arrays[name].dtype != dtype for name, dtype in _SURFACE.items()):
         raise CorruptMapError(f"{path}: the stored surface's arrays are missing or of the wrong type")
@@ -278,9 +282,8 @@ def load_localization_map(path, *, encoder_name: str | None = None, progress: bo
     fit = header.get("metadata", {}).get("belief_calibration")
     usable = fit is not None and encoder_label(fit.get("encoder", DEFAULT_ENCODER)) == encoder_name
     tactile_map = load_tactile_map_with_features(path, encoder_name, progress=progress)
-    surface = stored_surface(path)
     return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration_from_json(fit) if usable else None,
-                                            surface=SurfaceSettings() if surface is None else surface)
+                                            surface=stored_surface(path))
 
 
 def compact_tactile_map(source, destination, *, keep_images: bool = False, progress: bool = False) -> Path:

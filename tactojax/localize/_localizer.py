@@ -51,7 +51,7 @@ from tactojax.localize._identify_episodes import object_probabilities, shared_ca
 from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
 from tactojax.localize._predict_touch import MarchingGrid, map_marching_grid
-from tactojax.localize._surface import MapSurface, SurfaceSettings
+from tactojax.localize._surface import MapSurface
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
@@ -280,7 +280,7 @@ class Localizer:
         self.image_shape = (*model.image_shape, 3)
         self.settings, self.live = settings, live
         self.views = tuple(shared_shapes([
-            LocalizationMap.from_tactile_map(m, calibration=c, surface=SurfaceSettings() if s is None else s)
+            LocalizationMap.from_tactile_map(m, calibration=c, surface=s)
             for m, c, s in zip(maps, calibrations, surfaces)]))
         start = time.perf_counter()
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)

@@ -104,7 +104,7 @@ class LocalizationMap:
     def from_tactile_map(tactile_map: TactileMap, *, calibration: BeliefCalibration | None = None,
                          symmetries: jaxlie.SE3 | None = None,
                          continuous_symmetry: tuple[Float[Array, "3"], Float[Array, "3"]] | None = None,
-                         surface: SurfaceSettings | MapSurface = SurfaceSettings(),
+                         surface: SurfaceSettings | MapSurface | None = None,
                          points_per_imprint: int = MAP_POINTS) -> LocalizationMap:
         """The localization view of a :class:`~tactojax.mapping.TactileMap` (builds its surface
         on the host: about 1-4 s for the catalog maps).
@@ -120,9 +120,9 @@ class LocalizationMap:
             continuous_symmetry: ``(axis, centre)``, the unit axis of the object's continuous
                 rotational symmetry and a point on it (object frame, mm); zeros for none
                 (default: the map's, as ``symmetries``).
-            surface: how the surface grid is built, or the grid itself, built before from
-                this map (:func:`build_map_surface`; a map file stores its own,
-                :func:`~tactojax.io.stored_surface`), which saves rebuilding it.
+            surface: the grid itself, built before from this map (:func:`build_map_surface`;
+                a map file stores its own, :func:`~tactojax.io.stored_surface`), which saves
+                rebuilding it; else how to build it (None: the default :class:`SurfaceSettings`).
             points_per_imprint: contact points kept per imprint (the first ones of the map's
                 random sample).
         """
@@ -142,7 +142,8 @@ class LocalizationMap:
             features=jnp.asarray(features), imprint_valid=tactile_map.imprint_valid,
             points=jnp.asarray(all_points[:, :count]), normals=jnp.asarray(geometry["normals_object"][:, :count]),
             points_valid=jnp.asarray(all_valid[:, :count]), centres=jnp.asarray(centres),
-            surface=surface if isinstance(surface, MapSurface) else build_map_surface(tactile_map, surface, geometry=geometry),
+            surface=surface if isinstance(surface, MapSurface) else build_map_surface(
+                tactile_map, SurfaceSettings() if surface is None else surface, geometry=geometry),
             symmetries=tactile_map.object_symmetry.copies() if symmetries is None else symmetries,
             **_continuous_symmetry(tactile_map.object_symmetry, continuous_symmetry),
             calibration=BeliefCalibration.default() if calibration is None else calibration,

@@ -21,7 +21,7 @@ _decode_points = jax.jit(jax.vmap(pixel_points, in_axes=(0, 0, None)), static_ar
 @functools.partial(jax.jit, static_argnums=3)
 def _decode_in_object_frame(packed, pixels, wxyz_xyz, mm_per_px: float):
     """Imprints' points and normals in the sensor frame, then in the object frame."""
-    points, normals = jax.vmap(pixel_points, in_axes=(0, 0, None))(packed, pixels, mm_per_px)
+    points, normals = _decode_points(packed, pixels, mm_per_px)
     T = jaxlie.SE3(wxyz_xyz)
     return (points, normals, jax.vmap(lambda T, p: T @ p)(T, points),
             jax.vmap(lambda T, n: T.rotation() @ n)(T, normals))
