@@ -51,9 +51,7 @@ def run(args) -> int:
     from tactojax.localize.active import ActiveSettings
     from tactojax.localize._active_episodes import POLICIES, run_active_episodes
     from tactojax.localize._localizer import observe as observe_frame
-    from tactojax.localize._new_grasps import calibration
     from tactojax.objects import resolve_object
-    from tactojax.sensor import SENSOR_PRESETS, sensor_preset
 
     policies = [p.strip() for p in args.policies.split(",") if p.strip()]
     if unknown := sorted(set(policies) - set(POLICIES)):
@@ -74,55 +72,18 @@ def run(args) -> int:
     rows, stop_rows, payload, curves = [], [], {"policies": policies, "seed": args.seed, "objects": {}}, {}
     for path, tactile_map, name in zip(args.maps, maps, args.object):
         obj = resolve_object(name, units=args.mesh_units)
-        sensor = tactile_map.sensor or "gelslim"
-        full = sensor_preset(sensor) if sensor in SENSOR_PRESETS else sensor_preset("gelslim")
-        spec = sensor_preset(full.name if sensor in SENSOR_PRESETS else "gelslim",
-                             scale=tactile_map.image_shape[1] / full.width_px)
-        if abs(spec.mm_per_px - tactile_map.mm_per_px) > 1e-6 or model.image_shape != tactile_map.image_shape:
-            raise ValueError(f"{path}: the map's sensor ({tactile_map.image_shape} px at "
-                             f"{tactile_map.mm_per_px} mm/px) does not match the simulated one or the shape model")
+        spec = _simulated_sensor(path, tactile_map, model)
         view = LocalizationMap.from_tactile_map(tactile_map, calibration=stored_calibration(path, args.encoder),
                                                 surface=stored_surface(path))
         result = run_active_episodes(jax.random.key(args.seed), view, obj, spec, observe, episodes=args.episodes,
                                      max_grasps=args.max_grasps, policies=policies, candidates=args.candidates,
                                      turns_deg=args.turns_deg, settings=settings, progress=not args.no_progress)
-        symmetric = is_symmetric(tactile_map)
-        summaries, stops = [], {}
-        for policy in policies:
-            error = result.symmetric_rmse[policy] if symmetric else result.rmse[policy]
-            for k in range(args.max_grasps):
-                within = error[:, k] <= 2.0
-                summary = {"policy": policy, "grasps": k + 1, "fingers": args.fingers, "count": args.episodes,
-                           "median_rmse_mm": float(np.median(result.rmse[policy][:, k])),
-                           "median_symmetric_rmse_mm": float(np.median(result.symmetric_rmse[policy][:, k])),
-                           "within_mm": {str(t): float(np.mean(error[:, k] <= t)) for t in (1, 2, 5)},
-                           "spent_share": float(np.mean(result.spent[policy][:, k])),
-                           "calibration": calibration(result.probability[policy][:, k], within)}
-                summaries.append(summary)
-                rows.append([obj.name, policy, k + 1, summary["median_rmse_mm"],
-                             summary["median_symmetric_rmse_mm"] if symmetric else "-",
-                             *(f"{100 * summary['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
-                             float(np.mean(result.probability[policy][:, k])),
-                             summary["calibration"]["max_gap"], f"{100 * summary['spent_share']:.0f} %"])
-            stops[policy] = stop = stop_figures(result.probability[policy], error, args.stop)
-            stop_rows.append([obj.name, policy, f"{100 * stop['stopped_share']:.0f} %",
-                              "-" if stop["within_2mm_of_stopped"] is None else f"{100 * stop['within_2mm_of_stopped']:.0f} %",
-                              "-" if stop["mean_grasps_to_stop"] is None else stop["mean_grasps_to_stop"]])
-            curves[f"{obj.name}: {policy}"] = [s["within_mm"]["2"] for s in summaries if s["policy"] == policy]
-        hard = np.isin(np.round(result.turn_deg) % 360, (90, 270))
-        ranking = np.asarray(result.ranking_s)
-        payload["objects"][tactile_map.object_id] = {
-            "episodes": args.episodes, "symmetric": symmetric, "results": summaries, "stop": stops,
-            "turn_deg": result.turn_deg.tolist(),
-            "episodes_detail": {p: {"symmetric_rmse_mm": result.symmetric_rmse[p].tolist(),
-                                    "rmse_mm": result.rmse[p].tolist(), "probability": result.probability[p].tolist(),
-                                    "spent": result.spent[p].tolist()} for p in policies},
-            "within_2mm_at_90_270": {p: [float(np.mean((result.symmetric_rmse[p] if symmetric else result.rmse[p])
-                                                       [hard, k] <= 2.0)) if hard.any() else None
-                                         for k in range(args.max_grasps)] for p in policies},
-            "ranking_s": {"candidates": args.candidates, "hypotheses": args.hypotheses, "calls": int(len(ranking)),
-                          "first_s": float(ranking[0]) if len(ranking) else None,
-                          "median_s": float(np.median(ranking[1:])) if len(ranking) > 1 else None}}
+        entry, object_rows, object_stop_rows, object_curves = _summarise_object(result, obj, tactile_map, policies,
+                                                                                args)
+        payload["objects"][tactile_map.object_id] = entry
+        rows += object_rows
+        stop_rows += object_stop_rows
+        curves.update(object_curves)
     print(format_table(["object", "policy", "grasps", "median RMSE (mm)", "symmetric (mm)", "<= 1 mm", "<= 2 mm",
                         "<= 5 mm", "mean P(within 2 mm)", "calibration gap", "spent"], rows))
     print(f"\nstopping rule: P(within 2 mm) >= {args.stop} within {args.max_grasps} grasps")
@@ -137,6 +98,69 @@ def run(args) -> int:
     if args.json:
         write_json(args.json, payload)
     return 0
+
+
+def _simulated_sensor(path, tactile_map, model):
+    """The simulated sensor of a map's images (its preset, at the map's resolution); a ValueError
+    when it or the shape model does not match the map."""
+    from tactojax.sensor import SENSOR_PRESETS, sensor_preset
+
+    sensor = tactile_map.sensor or "gelslim"
+    full = sensor_preset(sensor) if sensor in SENSOR_PRESETS else sensor_preset("gelslim")
+    spec = sensor_preset(full.name if sensor in SENSOR_PRESETS else "gelslim",
+                         scale=tactile_map.image_shape[1] / full.width_px)
+    if abs(spec.mm_per_px - tactile_map.mm_per_px) > 1e-6 or model.image_shape != tactile_map.image_shape:
+        raise ValueError(f"{path}: the map's sensor ({tactile_map.image_shape} px at "
+                         f"{tactile_map.mm_per_px} mm/px) does not match the simulated one or the shape model")
+    return spec
+
+
+def _summarise_object(result, obj, tactile_map, policies, args):
+    """One object's closed-loop figures: its JSON entry, its rows of the results and stopping-rule
+    tables, and its curves of the share within 2 mm against grasps (one per policy)."""
+    import numpy as np
+
+    from tactojax.localize._new_grasps import calibration
+
+    rows, stop_rows, curves = [], [], {}
+    symmetric = is_symmetric(tactile_map)
+    summaries, stops = [], {}
+    for policy in policies:
+        error = result.symmetric_rmse[policy] if symmetric else result.rmse[policy]
+        for k in range(args.max_grasps):
+            within = error[:, k] <= 2.0
+            summary = {"policy": policy, "grasps": k + 1, "fingers": args.fingers, "count": args.episodes,
+                       "median_rmse_mm": float(np.median(result.rmse[policy][:, k])),
+                       "median_symmetric_rmse_mm": float(np.median(result.symmetric_rmse[policy][:, k])),
+                       "within_mm": {str(t): float(np.mean(error[:, k] <= t)) for t in (1, 2, 5)},
+                       "spent_share": float(np.mean(result.spent[policy][:, k])),
+                       "calibration": calibration(result.probability[policy][:, k], within)}
+            summaries.append(summary)
+            rows.append([obj.name, policy, k + 1, summary["median_rmse_mm"],
+                         summary["median_symmetric_rmse_mm"] if symmetric else "-",
+                         *(f"{100 * summary['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
+                         float(np.mean(result.probability[policy][:, k])),
+                         summary["calibration"]["max_gap"], f"{100 * summary['spent_share']:.0f} %"])
+        stops[policy] = stop = stop_figures(result.probability[policy], error, args.stop)
+        stop_rows.append([obj.name, policy, f"{100 * stop['stopped_share']:.0f} %",
+                          "-" if stop["within_2mm_of_stopped"] is None else f"{100 * stop['within_2mm_of_stopped']:.0f} %",
+                          "-" if stop["mean_grasps_to_stop"] is None else stop["mean_grasps_to_stop"]])
+        curves[f"{obj.name}: {policy}"] = [s["within_mm"]["2"] for s in summaries if s["policy"] == policy]
+    hard = np.isin(np.round(result.turn_deg) % 360, (90, 270))
+    ranking = np.asarray(result.ranking_s)
+    entry = {
+        "episodes": args.episodes, "symmetric": symmetric, "results": summaries, "stop": stops,
+        "turn_deg": result.turn_deg.tolist(),
+        "episodes_detail": {p: {"symmetric_rmse_mm": result.symmetric_rmse[p].tolist(),
+                                "rmse_mm": result.rmse[p].tolist(), "probability": result.probability[p].tolist(),
+                                "spent": result.spent[p].tolist()} for p in policies},
+        "within_2mm_at_90_270": {p: [float(np.mean((result.symmetric_rmse[p] if symmetric else result.rmse[p])
+                                                   [hard, k] <= 2.0)) if hard.any() else None
+                                     for k in range(args.max_grasps)] for p in policies},
+        "ranking_s": {"candidates": args.candidates, "hypotheses": args.hypotheses, "calls": int(len(ranking)),
+                      "first_s": float(ranking[0]) if len(ranking) else None,
+                      "median_s": float(np.median(ranking[1:])) if len(ranking) > 1 else None}}
+    return entry, rows, stop_rows, curves
 
 
 def stop_figures(probability, error, threshold: float) -> dict:

@@ -80,7 +80,7 @@ def run(args) -> int:
     from tactojax import CompilationCounter
     from tactojax.cli._maps import stored_calibration
     from tactojax.cli._record import open_pose_source
-    from tactojax.cli._table import format_table, write_json
+    from tactojax.cli._table import write_json
     from tactojax.hardware import WSG50, LiveStatistics, OpenCVCamera, live_estimates
     from tactojax.hardware._live import PoseLookup
     from tactojax.io import expand_catalogs, resolve_shape_model, stored_surface
@@ -142,34 +142,7 @@ def run(args) -> int:
         if view is not None:
             view.flush()
             view.disconnect()
-    summary = statistics.summary()
-    estimated = [record for record in records if record["object_id"] is not None]
-    if estimated:
-        last = estimated[-1]
-        probability = last["object_probabilities"][last["object_id"]]
-        rows = [["frame", last["frame"]], ["object (P(object))", f"{last['object_id']} ({probability:.3f})"],
-                ["P(within 2 mm)", last["probability_within_2mm"]], ["grasps fused", last["grasps"]]]
-        if last["T_object_sensor_wxyz_xyz"] is not None:
-            rows.append(["sensor pose in object (wxyz, xyz mm)",
-                         ", ".join(f"{v:.2f}" for v in last["T_object_sensor_wxyz_xyz"])])
-        if last["T_world_object_wxyz_xyz"] is not None and lookup is not None:
-            rows.append(["object pose in world (wxyz, xyz mm)",
-                         ", ".join(f"{v:.2f}" for v in last["T_world_object_wxyz_xyz"])])
-        print(format_table(["last frame with an estimate", "value"], rows))
-    touched = sum(record["contact"] for record in records)
-    print(format_table(["run", "value"], [
-        ["frames (without contact)", f"{summary['frames']} ({len(records) - touched})"],
-        ["grasps fused into the belief", sum(record["updated"] for record in records)],
-        ["sustained rate (Hz)", summary["rate_hz"]],
-        ["latency median / p95 (ms)", f"{summary['latency_ms']['median']:.1f} / {summary['latency_ms']['p95']:.1f}"],
-        ["skipped / dropped frames", f"{summary['skipped_frames']} / {summary['dropped_frames']}"],
-        *([] if lookup is None else [["frames without a pose (stale)", summary["stale_poses"]]]),
-        ["recompilations", summary["recompilations"]], ["compile at start-up (s)", localizer.compile_s],
-        *([] if args.no_tracking else [["frames tracked / beliefs started",
-                                        f"{localizer.tracked_frames} / {localizer.relocalizations}"]]),
-    ]))
-    if lookup is not None and lookup.stale:
-        print(f"note: {lookup.stale} frames had no gripper pose within {args.max_skew_ms:g} ms ({lookup.last_error})")
+    summary = _print_summary(records, statistics, localizer, lookup, args)
     if args.json:
         write_json(args.json, {"maps": list(localizer.object_ids), "method": "belief",
                                "tracking": not args.no_tracking, "pose_source": args.pose,
@@ -200,3 +173,39 @@ def _open_view(args, maps):
     if url:
         print(f"web viewer: {url}", flush=True)
     return recording
+
+
+def _print_summary(records: list[dict], statistics, localizer, lookup, args) -> dict:
+    """Print the last frame's estimate and the run's figures (rate, latency, skipped frames,
+    recompilations); returns :meth:`~tactojax.hardware.LiveStatistics.summary`."""
+    from tactojax.cli._table import format_table
+
+    summary = statistics.summary()
+    estimated = [record for record in records if record["object_id"] is not None]
+    if estimated:
+        last = estimated[-1]
+        probability = last["object_probabilities"][last["object_id"]]
+        rows = [["frame", last["frame"]], ["object (P(object))", f"{last['object_id']} ({probability:.3f})"],
+                ["P(within 2 mm)", last["probability_within_2mm"]], ["grasps fused", last["grasps"]]]
+        if last["T_object_sensor_wxyz_xyz"] is not None:
+            rows.append(["sensor pose in object (wxyz, xyz mm)",
+                         ", ".join(f"{v:.2f}" for v in last["T_object_sensor_wxyz_xyz"])])
+        if last["T_world_object_wxyz_xyz"] is not None and lookup is not None:
+            rows.append(["object pose in world (wxyz, xyz mm)",
+                         ", ".join(f"{v:.2f}" for v in last["T_world_object_wxyz_xyz"])])
+        print(format_table(["last frame with an estimate", "value"], rows))
+    touched = sum(record["contact"] for record in records)
+    print(format_table(["run", "value"], [
+        ["frames (without contact)", f"{summary['frames']} ({len(records) - touched})"],
+        ["grasps fused into the belief", sum(record["updated"] for record in records)],
+        ["sustained rate (Hz)", summary["rate_hz"]],
+        ["latency median / p95 (ms)", f"{summary['latency_ms']['median']:.1f} / {summary['latency_ms']['p95']:.1f}"],
+        ["skipped / dropped frames", f"{summary['skipped_frames']} / {summary['dropped_frames']}"],
+        *([] if lookup is None else [["frames without a pose (stale)", summary["stale_poses"]]]),
+        ["recompilations", summary["recompilations"]], ["compile at start-up (s)", localizer.compile_s],
+        *([] if args.no_tracking else [["frames tracked / beliefs started",
+                                        f"{localizer.tracked_frames} / {localizer.relocalizations}"]]),
+    ]))
+    if lookup is not None and lookup.stale:
+        print(f"note: {lookup.stale} frames had no gripper pose within {args.max_skew_ms:g} ms ({lookup.last_error})")
+    return summary

@@ -194,14 +194,16 @@ class LocalizationMap:
         """The stored imprints that saw the surface where a touch lands: the ``count`` whose
         contact centres are nearest ``centre`` (object frame, mm), among those whose sensor faced
         the surface within ``max_facing_deg`` of the touch's sensor at ``T_object_sensor`` (the
-        other side of a thin part is not the same surface). Nearest first; and which are real.
-        The one neighbour rule of registration, tracking and the belief's appearance cue."""
+        other side of a thin part is not the same surface). Nearest first; and which are real
+        (a map of fewer than ``count`` imprints pads with unreal ones). The one neighbour rule
+        of registration, tracking and the belief's appearance cue."""
         axis = T_object_sensor.rotation().as_matrix()[:, 2]
         axes = self.T_object_sensor.rotation().as_matrix()[..., :, 2]
         facing = self.imprint_valid & (axes @ axis >= jnp.cos(jnp.deg2rad(max_facing_deg)))
         score, nearest = jax.lax.top_k(jnp.where(facing, -jnp.linalg.norm(self.centres - centre, axis=-1), -jnp.inf),
-                                       count)
-        return nearest, jnp.isfinite(score)
+                                       min(count, len(self)))
+        missing = count - nearest.shape[0]
+        return jnp.pad(nearest, (0, missing)), jnp.pad(jnp.isfinite(score), (0, missing))
 
     def with_imprint_valid(self, imprint_valid: Bool[Array, "K"]) -> LocalizationMap:
         """The same map with only ``imprint_valid & self.imprint_valid`` imprints in it."""

@@ -29,6 +29,8 @@ never raises: a non-finite cost or an exhausted iteration budget comes back as
 
 from __future__ import annotations
 
+import functools
+
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -191,43 +193,8 @@ def solve_least_squares(
     def keep_going(state: _State) -> Bool[Array, ""]:
         return ~state.done & (state.iteration < max_iterations)
 
-    def step(state: _State) -> _State:
-        # Evaluate the trial point (the Jacobian with it: the residuals are traced only here).
-        residuals, jacobian, cost = evaluate(state.trial)
-        first = state.iteration == 0
-        accept = cost < state.cost  # the first evaluation is accepted whenever it is finite
-        step_length = jnp.linalg.norm(state.trial - state.theta)
-        small_step = ~first & (step_length <= step_tolerance * (jnp.linalg.norm(state.theta) + step_tolerance))
-        small_decrease = ~first & accept & (state.cost - cost <= cost_tolerance * state.cost)
-        theta = jnp.where(accept, state.trial, state.theta)
-        residuals = jnp.where(accept, residuals, state.residuals)
-        jacobian = jnp.where(accept, jacobian, state.jacobian)
-        cost = jnp.where(accept, cost, state.cost)
-        damping = jnp.where(first, state.damping,
-                            jnp.where(accept, state.damping / 3.0, state.damping * 4.0))
-        damping = jnp.clip(damping, _MIN_DAMPING, _MAX_DAMPING)
-
-        # Next trial from the best point.
-        delta, gradient = _marquardt_step(jacobian, residuals, mask_weights * robust_weights(residuals, scale, loss),
-                                          damping)
-        stationary = (jnp.max(jnp.abs(gradient) * (jnp.abs(theta) + 1.0))
-                      <= gradient_tolerance * jnp.maximum(cost, 1e-30))
-
-        failed = ~jnp.isfinite(cost)  # not even theta0 gave a finite cost
-        converged = ~failed & (stationary | small_step | small_decrease)
-        stuck = ~accept & (state.damping >= _MAX_DAMPING)
-        return _State(
-            theta=theta,
-            residuals=residuals,
-            jacobian=jacobian,
-            cost=cost,
-            trial=theta + delta,
-            damping=damping,
-            iteration=state.iteration + 1,
-            done=failed | converged | stuck,
-            converged=converged,
-        )
-
+    step = functools.partial(_iteration, evaluate=evaluate, mask_weights=mask_weights, scale=scale, loss=loss,
+                             tolerances=(cost_tolerance, step_tolerance, gradient_tolerance))
     state = jax.lax.while_loop(keep_going, step, state)
     return LeastSquaresResult(
         theta=unravel(state.theta),
@@ -235,4 +202,48 @@ def solve_least_squares(
         iterations=state.iteration,
         converged=state.converged & jnp.isfinite(state.cost),
         residuals=state.residuals,
+    )
+
+
+def _iteration(state: _State, *, evaluate: Callable, mask_weights: Float[Array, "N"], scale: Float[Array, ""],
+               loss: Loss, tolerances: tuple[float, float, float]) -> _State:
+    """One Levenberg-Marquardt iteration: evaluate the trial point (residuals and Jacobian), keep
+    it if it lowers the cost (damping / 3) or keep the best point (damping x 4), test convergence
+    (``tolerances``: cost, step, gradient; see :func:`solve_least_squares`), and propose the next
+    trial from the best point."""
+    cost_tolerance, step_tolerance, gradient_tolerance = tolerances
+    # Evaluate the trial point (the Jacobian with it: the residuals are traced only here).
+    residuals, jacobian, cost = evaluate(state.trial)
+    first = state.iteration == 0
+    accept = cost < state.cost  # the first evaluation is accepted whenever it is finite
+    step_length = jnp.linalg.norm(state.trial - state.theta)
+    small_step = ~first & (step_length <= step_tolerance * (jnp.linalg.norm(state.theta) + step_tolerance))
+    small_decrease = ~first & accept & (state.cost - cost <= cost_tolerance * state.cost)
+    theta = jnp.where(accept, state.trial, state.theta)
+    residuals = jnp.where(accept, residuals, state.residuals)
+    jacobian = jnp.where(accept, jacobian, state.jacobian)
+    cost = jnp.where(accept, cost, state.cost)
+    damping = jnp.where(first, state.damping,
+                        jnp.where(accept, state.damping / 3.0, state.damping * 4.0))
+    damping = jnp.clip(damping, _MIN_DAMPING, _MAX_DAMPING)
+
+    # Next trial from the best point.
+    delta, gradient = _marquardt_step(jacobian, residuals, mask_weights * robust_weights(residuals, scale, loss),
+                                      damping)
+    stationary = (jnp.max(jnp.abs(gradient) * (jnp.abs(theta) + 1.0))
+                  <= gradient_tolerance * jnp.maximum(cost, 1e-30))
+
+    failed = ~jnp.isfinite(cost)  # not even theta0 gave a finite cost
+    converged = ~failed & (stationary | small_step | small_decrease)
+    stuck = ~accept & (state.damping >= _MAX_DAMPING)
+    return _State(
+        theta=theta,
+        residuals=residuals,
+        jacobian=jacobian,
+        cost=cost,
+        trial=theta + delta,
+        damping=damping,
+        iteration=state.iteration + 1,
+        done=failed | converged | stuck,
+        converged=converged,
     )

@@ -42,6 +42,20 @@ def test_track_pose_registers_only_against_imprints_facing_the_same_way(bumps_vi
     assert int(estimate.imprint_index) == -1 and not bool(estimate.converged)
 
 
+def test_more_neighbours_than_imprints_pads_with_unreal_ones(bumps_view, synthetic):
+    """A map smaller than the neighbour count (the default tracking asks for 10; a coarse map may
+    hold 8 imprints): every imprint, nearest first, then unreal slots, never an error."""
+    count = len(bumps_view) + 5
+    T = synthetic.sensor_pose(1.0, -2.0)
+    centre = jnp.array([1.0, -2.0, 0.0], jnp.float32)
+    nearest, real = bumps_view.imprints_near(T, centre, count)
+    assert nearest.shape == real.shape == (count,)
+    distance = np.linalg.norm(np.asarray(bumps_view.centres) - np.asarray(centre), axis=1)
+    expected = np.argsort(distance, kind="stable")
+    assert np.asarray(real).tolist() == [True] * len(bumps_view) + [False] * 5
+    np.testing.assert_allclose(distance[np.asarray(nearest)[:len(bumps_view)]], distance[expected])
+
+
 def test_tracking_settings_reject_bad_values():
     with pytest.raises(ValueError, match="neighbour"):
         TrackingSettings(neighbours=0)
