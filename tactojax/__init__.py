@@ -15,8 +15,9 @@ checks the contract in ``pyproject.toml``; details in :mod:`tactojax.storage`):
 
 from tactojax._compilation import CompilationCounter as CompilationCounter
 from tactojax._compilation import kernel_count as kernel_count
+from tactojax._compilation import use_compilation_cache as use_compilation_cache
 from tactojax.sensor import Imprint as Imprint
 from tactojax.sensor import SensorSpec as SensorSpec
 
 __version__ = "0.1.0"
-__all__ = ["CompilationCounter", "Imprint", "SensorSpec", "__version__", "kernel_count"]
+__all__ = ["CompilationCounter", "Imprint", "SensorSpec", "__version__", "kernel_count", "use_compilation_cache"]

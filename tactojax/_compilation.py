@@ -1,9 +1,12 @@
-"""Counting XLA compilations, to check that a loop never recompiles."""
+"""Counting XLA compilations (to check that a loop never recompiles), and keeping them between
+runs (:func:`use_compilation_cache`)."""
 
 from __future__ import annotations
 
 import logging
+import os
 import re
+from pathlib import Path
 
 import jax
 
@@ -81,3 +84,50 @@ def kernel_count(compiled: jax.stages.Compiled) -> int:
             match = _OPCODE.search(line.split("=", 1)[1])
             count += match is not None and match.group(1) not in FREE_OPS
     return count
+
+
+CACHE_VARIABLE = "TACTOJAX_COMPILATION_CACHE"
+"""Environment variable: the folder :func:`use_compilation_cache` keeps compiled programs in, or
+``off`` for none."""
+
+
+def default_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/tactojax/xla`` (``~/.cache/tactojax/xla`` by default)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tactojax" / "xla"
+
+
+def use_compilation_cache(path: str | Path | None = None, *, min_compile_time_s: float = 1.0) -> Path | None:
+    """Keep compiled XLA programs on disk (JAX's persistent compilation cache), so that the next
+    process that builds the same programs loads them instead of compiling: the live
+    :class:`~tactojax.localize.Localizer` on a CPU compiles for 10-60 s at start-up, every start.
+
+    The ``tactojax`` command calls this before every sub-command; call it yourself at the top of
+    a script or notebook. JAX checks each entry against the program, the jaxlib version and the
+    device, so a stale entry is never used. Nothing changes where a cache is set already (JAX's
+    ``jax_compilation_cache_dir``, or ``JAX_COMPILATION_CACHE_DIR``).
+
+    Args:
+        path: the folder; default: ``$TACTOJAX_COMPILATION_CACHE``, else :func:`default_cache_dir`.
+            ``"off"`` (or that variable set to ``off``) keeps no cache.
+        min_compile_time_s: programs that compile faster than this are not kept (the many tiny
+            ones would only fill the folder).
+
+    Returns:
+        the folder in use (None: no cache).
+    """
+    current = jax.config.jax_compilation_cache_dir
+    if current:
+        return Path(current)
+    if path is None:
+        path = os.environ.get(CACHE_VARIABLE) or default_cache_dir()
+    if str(path) == "off":
+        return None
+    path = Path(path).expanduser()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # a read-only home: run without a cache, saying why
+        logging.getLogger(__name__).warning(f"no compilation cache: cannot create {path} ({error})")
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time_s))
+    return path

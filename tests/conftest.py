@@ -9,6 +9,8 @@ made by the controller (every run starts cold, so timings stay honest), or the f
 """
 
 import os
+import subprocess
+import sys
 import tempfile
 
 _QUICK_COMPILE = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
@@ -17,8 +19,18 @@ XLA:CPU compiles them about a third faster, and with its older loop emitters ins
 fusion emitters over twice as fast again (the belief's update: 5.9 against 2.5 s on 2 cores).
 Set before the backend starts (importing tactojax starts it); the processes the tests start
 inherit them."""
-for _flag in _QUICK_COMPILE:
-    if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+
+
+def _xla_knows(flag: str) -> bool:
+    """Whether the installed XLA accepts ``flag`` (it aborts the process on an unknown one: a
+    later jaxlib may drop a flag, and the suite must then run without it, not die)."""
+    probe = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
+                           env={**os.environ, "XLA_FLAGS": flag, "JAX_PLATFORMS": "cpu"}, capture_output=True)
+    return probe.returncode == 0
+
+
+for _flag in _QUICK_COMPILE:  # the controller probes; the workers inherit what it set
+    if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", "") and _xla_knows(_flag):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}".strip()
 
 import jax  # noqa: E402

@@ -42,3 +42,41 @@ def test_compilation_counter_counts_compilations_not_cache_hits():
         f(four)
     assert compiles.messages == []
     assert jax.config.jax_log_compiles == logging_before  # restored on exit
+
+
+CACHE_SCRIPT = """
+import sys
+import jax, jax.numpy as jnp
+from tactojax import use_compilation_cache
+path = use_compilation_cache(None if sys.argv[1] == "default" else sys.argv[1], min_compile_time_s=0.0)
+jax.jit(lambda x: jnp.sin(x) * 2.0 + 1.0)(jnp.ones(3)).block_until_ready()
+print(path)
+"""
+
+
+def _run_cache_script(argument, tmp_path, **env):
+    import os
+    import subprocess
+    import sys
+
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "TACTOJAX_COMPILATION_CACHE"}
+    environment.update(HOME=str(tmp_path / "home"), XDG_CACHE_HOME="", **env)
+    result = subprocess.run([sys.executable, "-c", CACHE_SCRIPT, argument], env=environment, capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return result.stdout.strip().splitlines()[-1]
+
+
+def test_compilation_cache_keeps_programs_where_asked_and_nowhere_when_off(tmp_path):
+    folder = tmp_path / "cache"
+    assert _run_cache_script(str(folder), tmp_path) == str(folder)
+    assert any(folder.iterdir()), "no compiled program was written"
+    # By default under the user's cache folder; the variable picks another, or none.
+    default = tmp_path / "home" / ".cache" / "tactojax" / "xla"
+    assert _run_cache_script("default", tmp_path) == str(default) and any(default.iterdir())
+    chosen = tmp_path / "chosen"
+    assert _run_cache_script("default", tmp_path, TACTOJAX_COMPILATION_CACHE=str(chosen)) == str(chosen)
+    assert _run_cache_script("default", tmp_path / "other", TACTOJAX_COMPILATION_CACHE="off") == "None"
+    assert not (tmp_path / "other").exists()
+    # A cache JAX was given already is kept.
+    assert _run_cache_script(str(folder), tmp_path, JAX_COMPILATION_CACHE_DIR=str(chosen)) == str(chosen)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tactojax import use_compilation_cache
 from tactojax.cli import (
     _calibrate, _calibrate_belief, _demo, _eval_localization, _eval_shape, _fit_shape, _identify, _info, _localize, _localize_live,
     _map, _record, _repair, _show, _simulate, _train, _train_features,
@@ -33,6 +34,8 @@ class UserError(Exception):
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # Compiled programs are kept between runs (TACTOJAX_COMPILATION_CACHE=off: not kept).
+    use_compilation_cache()
     try:
         return int(args.run(args) or 0)
     except KeyboardInterrupt:
