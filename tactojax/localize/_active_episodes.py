@@ -37,7 +37,7 @@ from tqdm.auto import tqdm
 
 from tactojax.geometry import heightmap_to_points, take
 from tactojax.localize._active import ActiveSettings, next_grasp, observe_failed_grasp, propose_grasps
-from tactojax.localize._belief import BeliefSettings, empty_belief
+from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief
 from tactojax.localize._evaluate import cloud_moments
 from tactojax.localize._localize import jitted_update
 from tactojax.localize._map import LocalizationMap, Touch
@@ -123,7 +123,7 @@ def run_active_episodes(
         T_world_object = executed.T_world_object
         out.turn_deg[episode] = executed.turn_deg
         for policy in policies:
-            T_object_sensor, means, covariances, valid = [], [], [], []
+            touches = []  # every fused touch's true sensor pose and contact cloud moments
             belief = empty_belief(view, belief_settings)
             for k in range(max_grasps):
                 if k == 0 or policy == "random":
@@ -138,30 +138,11 @@ def run_active_episodes(
                     if k > 0 and policy != "random":  # a chosen grasp that failed rules poses out
                         belief = observe_failed_grasp(view, grid, belief, T_world_gripper, settings)
                 else:
-                    # The camera's frames, as a dataset stores them (uint8).
-                    frames = np.asarray(jnp.round(grasp.imprint.image * 255.0)).astype(np.uint8)
-                    heightmaps, masks, features = observe(frames)
-                    for finger in range(2):
-                        touch = Touch(heightmap=jnp.asarray(heightmaps[finger]), mask=jnp.asarray(masks[finger]),
-                                      feature=jnp.asarray(features[finger]),
-                                      opening=jnp.asarray(grasp.imprint.opening[finger], jnp.float32))
-                        T_world_sensor = jax.tree.map(lambda x: x[finger], grasp.imprint.T_world_sensor)
-                        belief = jitted_update(view, belief, touch, T_world_sensor, belief_settings)
-                        T_object_sensor.append(T_world_object.inverse() @ T_world_sensor)
-                        points = heightmap_to_points(grasp.imprint.heightmap[finger], view.mm_per_px).reshape(-1, 3)
-                        mean, covariance = cloud_moments(points, grasp.imprint.mask[finger].reshape(-1))
-                        means.append(mean), covariances.append(covariance), valid.append(True)
-                if T_object_sensor:
-                    slots = 2 * max_grasps
-                    pad = slots - len(T_object_sensor)
-                    T_true = jaxlie.SE3(jnp.stack([T.wxyz_xyz for T in T_object_sensor]
-                                                  + [jaxlie.SE3.identity().wxyz_xyz] * pad))
-                    T_estimate = belief.best @ belief.T_world_reference.inverse() @ T_world_object @ T_true
-                    mask = jnp.asarray(valid + [False] * pad)
-                    rmse, symmetric, _, _ = errors(T_true, T_estimate, jnp.stack(means + [means[0]] * pad),
-                                                   jnp.stack(covariances + [covariances[0]] * pad), mask,
-                                                   view.symmetries, view.symmetry_axis, view.symmetry_centre)
-                    out.rmse[policy][episode, k], out.symmetric_rmse[policy][episode, k] = float(rmse), float(symmetric)
+                    belief, felt = _fuse_grasp(view, belief, grasp, observe, T_world_object, belief_settings)
+                    touches += felt
+                if touches:
+                    rmse, symmetric = _belief_errors(errors, view, belief, T_world_object, touches, 2 * max_grasps)
+                    out.rmse[policy][episode, k], out.symmetric_rmse[policy][episode, k] = rmse, symmetric
                     out.probability[policy][episode, k] = float(belief.probability_within())
                 else:  # nothing felt yet: no estimate
                     out.rmse[policy][episode, k] = out.symmetric_rmse[policy][episode, k] = np.inf
@@ -219,3 +200,38 @@ def _choose(key, view, grid, belief, policy, candidates, settings, ranking_s) ->
     else:  # largest-contact
         best = int(np.argmax(np.where(np.asarray(closes), np.asarray(ranking.contact_area), -1.0)))
     return take(proposals, best)
+
+
+def _fuse_grasp(view: LocalizationMap, belief: PoseBelief, grasp, observe, T_world_object: jaxlie.SE3,
+                belief_settings: BeliefSettings) -> tuple[PoseBelief, list[tuple]]:
+    """The belief after an executed grasp's two touches (sensor finger, then the other), read
+    from its camera frames as the robot would (``observe``); and, per touch, the true sensor pose
+    in the object frame and the first two moments of its true contact cloud (for the errors)."""
+    frames = np.asarray(jnp.round(grasp.imprint.image * 255.0)).astype(np.uint8)  # as a dataset stores them
+    heightmaps, masks, features = observe(frames)
+    felt = []
+    for finger in range(2):
+        touch = Touch(heightmap=jnp.asarray(heightmaps[finger]), mask=jnp.asarray(masks[finger]),
+                      feature=jnp.asarray(features[finger]),
+                      opening=jnp.asarray(grasp.imprint.opening[finger], jnp.float32))
+        T_world_sensor = jax.tree.map(lambda x: x[finger], grasp.imprint.T_world_sensor)
+        belief = jitted_update(view, belief, touch, T_world_sensor, belief_settings)
+        points = heightmap_to_points(grasp.imprint.heightmap[finger], view.mm_per_px).reshape(-1, 3)
+        felt.append((T_world_object.inverse() @ T_world_sensor,
+                     *cloud_moments(points, grasp.imprint.mask[finger].reshape(-1))))
+    return belief, felt
+
+
+def _belief_errors(errors, view: LocalizationMap, belief: PoseBelief, T_world_object: jaxlie.SE3,
+                   touches: list[tuple], slots: int) -> tuple[float, float]:
+    """The cloud RMSE (mm) of the fused touches at the belief's best pose against their true
+    poses, and its symmetry-aware value; ``touches`` padded to ``slots`` (one program for all)."""
+    pad = slots - len(touches)
+    T_object_sensor, means, covariances = zip(*touches)
+    T_true = jaxlie.SE3(jnp.stack([T.wxyz_xyz for T in T_object_sensor] + [jaxlie.SE3.identity().wxyz_xyz] * pad))
+    T_estimate = belief.best @ belief.T_world_reference.inverse() @ T_world_object @ T_true
+    mask = jnp.asarray([True] * len(touches) + [False] * pad)
+    rmse, symmetric, _, _ = errors(T_true, T_estimate, jnp.stack(list(means) + [means[0]] * pad),
+                                   jnp.stack(list(covariances) + [covariances[0]] * pad), mask,
+                                   view.symmetries, view.symmetry_axis, view.symmetry_centre)
+    return float(rmse), float(symmetric)
