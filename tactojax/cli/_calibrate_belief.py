@@ -14,7 +14,8 @@ def add_parser(commands) -> None:
                     "at known poses: `tactojax simulate OBJECT --protocol grasps --seed S`, with a seed of "
                     "their own, never the test set's) and fit its temperature, appearance weight and "
                     "fusion exponent (the appearance weight relative to the temperature by the likelihood of the "
-                    "true pose, then the temperature and exponent so that its P(within 2 mm) is calibrated); the "
+                    "true pose, then the temperature and exponent so that its P(within 2 mm) is calibrated, then "
+                    "the probability, by touch count, that its search found the true pose's mode at all); the "
                     "fit is stored in the map's header, where every command that runs the belief reads it.")
     parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (the fit is written into their headers; nothing else changes)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
@@ -76,8 +77,8 @@ def run(args) -> int:
         payload[tactile_map.object_id] = report
         rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
                      report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])
-    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "truth NLL", "within log loss",
-                        "best within 2 mm"], rows))
+    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "found offset",
+                        "found slope", "truth NLL", "within log loss", "best within 2 mm"], rows))
     if args.json:
         write_json(args.json, payload)
     return 0

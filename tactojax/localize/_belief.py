@@ -185,7 +185,8 @@ class PoseBelief:
     def probability_within(self, threshold_mm: float = WITHIN_MM) -> Float[Array, ""]:
         """P(the best pose is within ``threshold_mm`` of the truth, up to the object's
         symmetry), the cloud RMSE of the remembered touches' contact points (the paper's
-        metric), under the belief."""
+        metric): the hypotheses' mass near the best, times the probability that they hold the
+        truth's mode at all (:meth:`BeliefCalibration.found_probability`)."""
         return _probability_within(self, threshold_mm)
 
     def modes(self, separation_mm: float = WITHIN_MM) -> tuple[Int[Array, "M"], Float[Array, "M"]]:
@@ -209,7 +210,8 @@ class PoseBelief:
 @jax.jit
 def _probability_within(belief: PoseBelief, threshold_mm: Float[Array, ""]) -> Float[Array, ""]:
     distance = hypothesis_distances(belief, belief.best, symmetric=True)
-    return jnp.sum(jnp.where(distance <= threshold_mm, belief.probabilities, 0.0))
+    near = jnp.sum(jnp.where(distance <= threshold_mm, belief.probabilities, 0.0))
+    return near * belief.calibration.found_probability(belief.touches)
 
 
 @jax.jit

@@ -8,6 +8,8 @@ cloud at its true and its estimated pose (:func:`moment_rmse`, from the cloud's 
 """
 
 from tactojax.localize._active import belief_error as belief_error
+from tactojax.localize._calibrate import fit_found_probability as fit_found_probability
+from tactojax.localize._calibrate import predict_within as predict_within
 from tactojax.localize._calibrate import record_beliefs as record_beliefs
 from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._episode_beliefs import episode_beliefs as episode_beliefs
@@ -35,12 +37,14 @@ __all__ = [
     "evaluate_identification",
     "evaluate_localization",
     "evaluate_new_grasps",
+    "fit_found_probability",
     "identify_episodes",
     "load_test_episodes",
     "map_size_study",
     "map_touch",
     "moment_rmse",
     "oracle_imprints",
+    "predict_within",
     "record_beliefs",
     "sequence_order",
 ]

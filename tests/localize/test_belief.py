@@ -263,8 +263,10 @@ def test_symmetric_map_keeps_both_copies_and_counts_them_as_one(synthetic, belie
     _, symmetric_mass = belief.modes()
     assert np.sort(np.asarray(plain_mass))[-2] > 0.3  # two modes of similar weight
     assert np.max(np.asarray(symmetric_mass)) > 0.9  # one mode, up to the symmetry
-    assert float(beliefs["plain"].probability_within()) < 0.7
-    assert float(belief.probability_within()) > 0.9
+    # P(within 2 mm): the mass near the best, times P(the search found the truth's mode).
+    found = float(belief.calibration.found_probability(belief.touches))
+    assert float(beliefs["plain"].probability_within()) < 0.7 * found
+    assert float(belief.probability_within()) > 0.9 * found
 
 
 def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthetic, belief_settings):
@@ -278,7 +280,8 @@ def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthet
         T_true = synthetic.sensor_pose(1.53, -0.96, yaw)  # off the presses' pixel grid, as a new touch is
         touch = synthetic.touch(getattr(synthetic, name), T_true)
         belief = update(view, empty_belief(view, belief_settings), touch, jaxlie.SE3.identity(), belief_settings)
-        within[name] = float(belief.probability_within())
+        # The mass near the best (P(within 2 mm) before the search's miss rate).
+        within[name] = float(belief.probability_within()) / float(belief.calibration.found_probability(belief.touches))
         probes = neighbourhood_probes(view, belief, belief.best, belief_settings.probe_mm)
         evidence = _evidence(touch, view, belief_settings)
         points = np.asarray(evidence.contact)[np.asarray(evidence.contact_valid)]

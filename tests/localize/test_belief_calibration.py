@@ -62,6 +62,48 @@ def test_an_overconfident_temperature_is_worse_than_the_fit():
     assert abs(fitted_probability.mean() - happened.mean()) < 0.03
 
 
+def _drop_truth(rng, records, offset, slope):
+    """The records with the truth removed (a search that missed it) at the rate
+    1 - sigmoid(offset + slope * log touches)."""
+    found = 1.0 / (1.0 + np.exp(-(offset + slope * np.log(records.touches))))
+    missed = rng.random(found.shape) > found
+    return records.replace(truth=records.truth & ~missed[:, None])
+
+
+def test_fit_recovers_how_often_the_search_misses_the_truth():
+    """Beliefs whose weights are calibrated when the truth is among the hypotheses, but whose
+    search misses it more often after few touches: the fit recovers that rate, and the reported
+    P(within 2 mm) matches what happened at every touch count."""
+    from tactojax.localize.evaluation import fit_found_probability
+
+    rng = np.random.default_rng(5)
+    records = _drop_truth(rng, _synthetic_records(rng, 0.02, 0.5, count=6000), offset=0.0, slope=2.0)
+    complete = BeliefCalibration(temperature=np.float32(0.02), appearance=np.float32(0.0),
+                                 fusion_exponent=np.float32(0.5))
+    fitted = fit_found_probability(records, complete)
+    touches = np.array([1, 2, 6])
+    expected = 1.0 / (1.0 + np.exp(-(0.0 + 2.0 * np.log(touches))))
+    np.testing.assert_allclose(np.asarray(fitted.found_probability(touches)), expected, atol=0.05)
+    probability, happened = predict_within(records, fitted)
+    overconfident, _ = predict_within(records, complete)
+    for count in (1, 2, 6):
+        mask = records.touches == count
+        assert abs(probability[mask].mean() - happened[mask].mean()) < 0.04
+    assert overconfident[records.touches == 1].mean() > 1.5 * happened[records.touches == 1].mean()  # twice, in truth
+
+
+def test_a_fit_stored_before_the_search_term_takes_the_default():
+    from tactojax.localize import calibration_from_json, calibration_to_json
+    from tactojax.localize._map import DEFAULT_FOUND
+
+    old = {"temperature": 0.1, "appearance": 2.0, "fusion_exponent": 0.5, "loss": 0.3}
+    calibration = calibration_from_json(old)
+    assert float(calibration.found_offset) == pytest.approx(DEFAULT_FOUND["found_offset"])
+    assert float(calibration.found_slope) == pytest.approx(DEFAULT_FOUND["found_slope"])
+    again = calibration_from_json(calibration_to_json(calibration.replace(found_offset=np.float32(-1.5))))
+    assert float(again.found_offset) == -1.5 and float(again.temperature) == pytest.approx(0.1)
+
+
 def test_nothing_to_fit_is_a_clear_error():
     records = _synthetic_records(np.random.default_rng(3), 0.1, 0.0, count=5)
     records = records.replace(valid=np.zeros_like(records.valid))
