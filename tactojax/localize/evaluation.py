@@ -14,6 +14,7 @@ from tactojax.localize._calibrate import record_beliefs as record_beliefs
 from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._episode_beliefs import episode_beliefs as episode_beliefs
 from tactojax.localize._episode_beliefs import sequence_order as sequence_order
+from tactojax.localize._evaluate import LEAVE_ONE_OUT_GRID as LEAVE_ONE_OUT_GRID
 from tactojax.localize._evaluate import LocalizationErrors as LocalizationErrors
 from tactojax.localize._evaluate import cloud_moments as cloud_moments
 from tactojax.localize._evaluate import evaluate_localization as evaluate_localization
@@ -29,6 +30,7 @@ from tactojax.localize._test_episodes import load_test_episodes as load_test_epi
 
 __all__ = [
     "EpisodeErrors",
+    "LEAVE_ONE_OUT_GRID",
     "LocalizationErrors",
     "TestEpisodes",
     "belief_error",
