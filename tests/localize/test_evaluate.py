@@ -120,3 +120,24 @@ def test_table_iii_with_the_belief_on_a_tiny_map(bumps_map, belief_settings):
     assert np.median(belief.rmse) < 0.5 and np.median(belief.rmse) <= np.median(icp.rmse) + 0.05
     # The belief is confident where it is right: a query off by more than 2 mm never holds P > 0.9.
     assert not np.any((belief.rmse > 2.0) & (belief.probability > 0.9))
+
+
+def test_the_leave_one_out_grid_reaches_a_whole_mapping_step():
+    """A held-out imprint's nearest stored neighbours sit one step of the paper's mapping grid
+    away (10 mm, 20 degrees of yaw); the new-grasps grid reaches half of it, the leave-one-out
+    grid all of it, with as many candidates (offsets read back with scipy)."""
+    import jax.numpy as jnp
+
+    from tactojax.localize import BeliefSettings
+    from tactojax.localize.evaluation import LEAVE_ONE_OUT_GRID
+
+    def reach(grid):
+        matrices = _matrices(grid.offsets(jnp.zeros(3)))
+        shift = np.max(np.abs(matrices[:, :2, 3]))
+        turn = np.max(Rotation.from_matrix(matrices[:, :3, :3]).magnitude())
+        return shift, np.rad2deg(turn)
+
+    default = BeliefSettings().grid
+    assert LEAVE_ONE_OUT_GRID.size == default.size
+    np.testing.assert_allclose(reach(default), (5.0, 10.0), atol=1e-4)
+    np.testing.assert_allclose(reach(LEAVE_ONE_OUT_GRID), (10.0, 20.0), atol=1e-4)
