@@ -33,7 +33,8 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
 
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
 from tactojax.localize import BeliefCalibration, LocalizationMap
-from tactojax.localize.evaluation import fit_found_probability, load_test_episodes, predict_within, record_beliefs
+from tactojax.localize.evaluation import (fit_found_probability, load_test_episodes, predict_within, record_beliefs,
+                                         within_log_loss)
 
 TOUCH_GROUPS = ((1, 1), (2, 2), (3, 4), (5, 6))
 """Touch counts reported together."""
@@ -81,8 +82,7 @@ def summary(records, before: BeliefCalibration, after: BeliefCalibration) -> dic
     touches = np.asarray(records.touches)
 
     def loss(p, mask):
-        p = np.clip(p[mask], 1e-4, 1 - 1e-4)
-        return float(-np.mean(np.where(happened[mask], np.log(p), np.log1p(-p))))
+        return within_log_loss(p[mask], happened[mask])
 
     groups = {}
     for low, high in TOUCH_GROUPS:

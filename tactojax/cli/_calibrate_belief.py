@@ -77,8 +77,8 @@ def run(args) -> int:
         payload[tactile_map.object_id] = report
         rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
                      report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])
-    print(format_table(["object", "beliefs", "temperature", "appearance", "fusion exponent", "found offset",
-                        "found slope", "truth NLL", "within log loss", "best within 2 mm"], rows))
+    fields = [name.replace("_", " ") for name in calibration_to_json(calibration)]
+    print(format_table(["object", "beliefs", *fields, "truth NLL", "within log loss", "best within 2 mm"], rows))
     if args.json:
         write_json(args.json, payload)
     return 0

@@ -180,13 +180,11 @@ def truth_log_loss(mass: np.ndarray) -> float:
     return float(-np.mean(np.log(np.clip(mass, PROBABILITY_FLOOR, 1.0))))
 
 
-def _scales(temperature: float, appearance: float, exponent: float, found_offset: float = FOUND_OFFSETS[-1],
-            found_slope: float = 0.0) -> BeliefCalibration:
-    """Calibration values as numpy scalars (the steps before the last fit them with the search
-    taken as complete: P(found) = sigmoid(8), 0.9997)."""
+def _scales(temperature: float, appearance: float, exponent: float) -> BeliefCalibration:
+    """The scales as numpy scalars, the search taken as complete (the dataclass's own default:
+    the steps before the last fit the scales without it)."""
     return BeliefCalibration(temperature=np.float32(temperature), appearance=np.float32(appearance),
-                             fusion_exponent=np.float32(exponent), found_offset=np.float32(found_offset),
-                             found_slope=np.float32(found_slope))
+                             fusion_exponent=np.float32(exponent))
 
 
 def fit_found_probability(records: BeliefRecord, calibration: BeliefCalibration) -> BeliefCalibration:

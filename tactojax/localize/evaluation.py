@@ -11,6 +11,7 @@ from tactojax.localize._active import belief_error as belief_error
 from tactojax.localize._calibrate import fit_found_probability as fit_found_probability
 from tactojax.localize._calibrate import predict_within as predict_within
 from tactojax.localize._calibrate import record_beliefs as record_beliefs
+from tactojax.localize._calibrate import within_log_loss as within_log_loss
 from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._episode_beliefs import episode_beliefs as episode_beliefs
 from tactojax.localize._episode_beliefs import sequence_order as sequence_order
@@ -49,4 +50,5 @@ __all__ = [
     "predict_within",
     "record_beliefs",
     "sequence_order",
+    "within_log_loss",
 ]
