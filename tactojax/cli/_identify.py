@@ -5,6 +5,7 @@ from __future__ import annotations
 from tactojax.cli._map import DEFAULT_MODEL
 from tactojax.cli._maps import add_encoder_argument, load_maps_with_features
 from tactojax.cli._table import format_table, write_json
+from tactojax.localize._identify_episodes import OBJECT_TOLERANCE
 
 
 def add_parser(commands) -> None:
@@ -26,6 +27,10 @@ def add_parser(commands) -> None:
                           "likelihoods, top-1 after k = 1..K grasps")
     new.add_argument("--fingers", type=int, choices=[1, 2], default=2, help="fingers fused per grasp (default 2)")
     new.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model for the test images (default {DEFAULT_MODEL})")
+    new.add_argument("--object-tolerance", type=float, default=OBJECT_TOLERANCE, metavar="P",
+                     help="P(object) a grasp may drop, as the live localizer: after each grasp the least probable "
+                          f"maps that together hold at most P are no longer weighed (default {OBJECT_TOLERANCE}; "
+                          "0: every map)")
     parser.set_defaults(run=run)
 
 
@@ -71,7 +76,7 @@ def run_new_grasps(args) -> int:
     model = resolve_shape_model(args.model)
     catalog, _ = localization_views(args.maps, maps, args.encoder, shared=True)
     calibration = catalog[0].calibration  # the maps' median: one calibration, so that evidences compare
-    correct, probability, identified = {}, {}, {}  # object -> (E, G) arrays
+    correct, probability, identified, weighed = {}, {}, {}, {}  # object -> (E, G) arrays
     for directory in args.test:
         for name in sorted(set(read_test_grasps(directory, ["opening_mm"])["object_id"].tolist())):
             if name not in names:
@@ -79,22 +84,28 @@ def run_new_grasps(args) -> int:
             episodes, recorded = load_test_episodes(directory, name, model, encoder)
             if args.fingers > recorded:
                 raise ValueError(f"--fingers {args.fingers}: {directory} records {recorded} finger per grasp")
-            p = identify_episodes(catalog, episodes, fingers=args.fingers, calibration=calibration, progress=True)
+            p = identify_episodes(catalog, episodes, fingers=args.fingers, calibration=calibration,
+                                  object_tolerance=args.object_tolerance, progress=True)
             identified[name] = np.argmax(p, axis=-1)
             correct[name] = identified[name] == names.index(name)
             probability[name] = p[..., names.index(name)]
+            weighed[name] = np.sum(p > 0, axis=-1)  # the maps in play (the others were ruled out before)
     grasps = min(c.shape[1] for c in correct.values())
     rows, results = [], []
     for k in range(grasps):
         hits = np.concatenate([c[:, k] for c in correct.values()])
         true_p = np.concatenate([p[:, k] for p in probability.values()])
+        maps_weighed = float(np.mean(np.concatenate([w[:, k] for w in weighed.values()])))
         results.append({"grasps": k + 1, "fingers": args.fingers, "count": int(len(hits)),
                         "top1": float(np.mean(hits)), "mean_probability_of_truth": float(np.mean(true_p)),
+                        "mean_maps_weighed": maps_weighed,
                         "per_object_top1": {n: float(np.mean(c[:, k])) for n, c in correct.items()}})
         rows.append([k + 1, args.fingers, len(hits), f"{100 * np.mean(hits):.1f} %", float(np.mean(true_p)),
-                     *(f"{100 * np.mean(c[:, k]):.0f} %" for c in correct.values())])
-    print(f"identification among {len(names)} objects, P(object) from every map's pose belief")
-    print(format_table(["grasps", "fingers", "episodes", "top-1", "mean P(true object)", *correct], rows))
+                     maps_weighed, *(f"{100 * np.mean(c[:, k]):.0f} %" for c in correct.values())])
+    print(f"identification among {len(names)} objects, P(object) from the pose beliefs of the maps in play "
+          f"(object tolerance {args.object_tolerance})")
+    print(format_table(["grasps", "fingers", "episodes", "top-1", "mean P(true object)", "maps weighed", *correct],
+                       rows))
     confusion = np.zeros((len(names), len(names)), int)  # [true, identified] after the last grasp
     for name, choice in identified.items():
         np.add.at(confusion[names.index(name)], choice[:, grasps - 1], 1)
@@ -102,5 +113,6 @@ def run_new_grasps(args) -> int:
     print(f"figure: {args.figure} (confusion after {grasps} grasps)")
     if args.json:
         write_json(args.json, {"objects": names, "test": args.test, "calibration": calibration_to_json(calibration),
+                               "object_tolerance": args.object_tolerance,
                                "results": results, "confusion": {"grasps": grasps, "true_by_identified": confusion.tolist()}})
     return 0

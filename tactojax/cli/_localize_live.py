@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from tactojax.cli._map import DEFAULT_MODEL
 from tactojax.cli._maps import add_encoder_argument, camera_source, maps_and_query_encoder
+from tactojax.localize._identify_episodes import OBJECT_TOLERANCE
 
 
 def add_parser(commands) -> None:
@@ -46,6 +47,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--no-tracking", action="store_true",
                         help="report the belief on every frame, moved with the gripper, without tracking (default: "
                              "track the pose between frames)")
+    parser.add_argument("--object-tolerance", type=float, default=OBJECT_TOLERANCE, metavar="P",
+                        help="P(object) a grasp may drop: after each grasp the least probable maps that together "
+                             f"hold at most P are no longer updated until the localizer resets (default "
+                             f"{OBJECT_TOLERANCE}; 0: every map)")
     parser.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--every-frame", action="store_true",
                         help="process every frame in order (default for video files); otherwise always the "
@@ -101,7 +106,8 @@ def run(args) -> int:
     # waits for it; a video file is read frame by frame, each update in its frame.
     localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
                                                              surfaces=[stored_surface(p) for p in args.maps],
-                                                             live=LiveSettings(background_update=not every_frame))
+                                                             live=LiveSettings(background_update=not every_frame,
+                                                                               object_tolerance=args.object_tolerance))
     print(f"compiled in {localizer.compile_s:.1f} s for {', '.join(localizer.object_ids)}"
           f"{'' if args.no_tracking else ' (tracking between frames)'}")
     poses = open_pose_source(args.pose) if args.pose else None

@@ -8,8 +8,8 @@ at rest), its touches (one per finger) update every map's pose belief once, with
 from the encoder. A grasp lasts until a frame shows no contact (the gripper opened); only its
 first settled state counts, as the gripper may then carry the object. Successive grasps of an
 object that stays put between them are fused by their sensor poses (the kinematics);
-:meth:`Localizer.reset` forgets them (the object was moved, or another one is grasped). Between updates every frame reports the belief as it stands, the sensor pose moved
-with the gripper.
+:meth:`Localizer.reset` forgets them (the object was moved, or another one is grasped). Between
+updates every frame reports the belief as it stands, the sensor pose moved with the gripper.
 
 An update takes tens of milliseconds on a CPU, several camera frames. With
 ``LiveSettings(background_update=True)`` (what ``tactojax localize-live`` uses on a live
@@ -20,6 +20,9 @@ the belief.
 
 Several maps: each keeps its own belief, all under one calibration, so their evidences compare:
 P(object) is their softmax (:func:`~tactojax.localize.evaluation.identify_episodes` does the same offline).
+After every grasp the least probable maps, together at most ``LiveSettings.object_tolerance`` of
+P(object), drop out until :meth:`Localizer.reset`: the first grasp runs every map's belief, the
+later ones only those of the objects still in play.
 
 Every program is compiled when the localizer is built (fixed image size, map sizes and
 settings) and accepts only arrays of the shapes it was built for, so a frame can never
@@ -47,7 +50,8 @@ from tactojax.features._encoder import apply_encoder
 from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.localize._active import ActiveSettings, observe_failed_grasp
 from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
-from tactojax.localize._identify_episodes import object_probabilities, shared_calibration
+from tactojax.localize._identify_episodes import (OBJECT_TOLERANCE, likely_objects, object_probabilities,
+                                                  shared_calibration)
 from tactojax.localize._localize import update_program
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
 from tactojax.localize._predict_touch import MarchingGrid, map_marching_grid
@@ -91,10 +95,16 @@ class LiveSettings:
     background_update: bool = False
     """Run a settled grasp's belief update in a worker thread, so that no frame waits for it
     (see the module docstring); :meth:`Localizer.fuse` still updates at once."""
+    object_tolerance: float = OBJECT_TOLERANCE
+    """P(object) a grasp may drop: after it, the least probable maps that together hold at most
+    this much are no longer updated (P(object) 0) until :meth:`Localizer.reset` (0: every map
+    stays; :func:`~tactojax.localize._identify_episodes.likely_objects`)."""
 
     def __post_init__(self):
         if self.settle_frames < 1:
             raise ValueError(f"settle_frames must be >= 1, got {self.settle_frames}")
+        if not 0.0 <= self.object_tolerance < 1.0:
+            raise ValueError(f"object_tolerance must be in [0, 1), got {self.object_tolerance}")
 
 
 @dataclass(frozen=True)
@@ -327,7 +337,11 @@ class Localizer:
             self._pending = None
         self._fresh = False  # an update landed that no estimate has reported yet
         self.beliefs = list(self._empty)
-        """Every map's :class:`~tactojax.localize.PoseBelief` (inspect, plot, or save it)."""
+        """Every map's :class:`~tactojax.localize.PoseBelief` (inspect, plot, or save it); a map
+        out of play (:attr:`in_play`) keeps the belief it had when it dropped out."""
+        self.in_play = np.ones(len(self.views), bool)
+        """(M,) the maps a grasp updates: those not yet ruled out since the reset
+        (:attr:`LiveSettings.object_tolerance`)."""
         self.grasps = 0
         self._summary = None
         self._previous = None  # (gripper pose or None, opening) of the previous contact frame
@@ -432,23 +446,24 @@ class Localizer:
             identity if T_object_sensor is None else T_object_sensor))
 
     def _fuse_grasp(self, frame: Frame, *, background: bool) -> None:
-        """Update every map's belief with this grasp's touches, now or in the worker thread."""
+        """Update the beliefs of the maps in play with this grasp's touches, now or in the worker thread."""
         self._collect(wait=True)  # grasps update in order, each from the belief the last one left
         if frame.gripper is None or not self._poses_known:  # grasps that cannot be related: start over
             if self.grasps:
                 self.reset()
             self._poses_known = frame.gripper is not None
         if not background:
-            self._land(*self._updated(self.beliefs, frame))
+            self._land(*self._updated(self.beliefs, self.in_play, frame))
             return
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tactojax-belief")
-        self._pending = self._worker.submit(self._updated, self.beliefs, frame)
+        self._pending = self._worker.submit(self._updated, self.beliefs, self.in_play, frame)
 
-    def _updated(self, beliefs: Sequence[PoseBelief], frame: Frame):
-        """Every map's belief after this grasp's touches (sensor finger, then the other), and
-        what an estimate reports of them (None: no map explains the touches). Touches nothing
-        of ``self`` but its compiled programs (it may run in the worker thread)."""
+    def _updated(self, beliefs: Sequence[PoseBelief], in_play: np.ndarray, frame: Frame):
+        """The beliefs of the maps in play after this grasp's touches (sensor finger, then the
+        other), what an estimate reports of them (None: no map explains the touches), and the
+        maps still in play after it. Touches nothing of ``self`` but its compiled programs (it
+        may run in the worker thread)."""
         image, second_image, opening_mm, gripper = frame.image, frame.second_image, frame.opening_mm, frame.gripper
         opening = np.float32(opening_mm)
         T_world_sensor, T_world_opposite, _, _ = self._poses(gripper, opening)
@@ -462,14 +477,14 @@ class Localizer:
                                       feature=self._encode(self._encoder, second_image), opening=opening),
                                 T_world_opposite))
         beliefs = list(beliefs)
-        for m, view in enumerate(self.views):
+        for m in np.flatnonzero(in_play):
             for touch, T_world_touch in touches:
-                beliefs[m] = self._update(view, beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
-        return beliefs, self._summary_of(beliefs)
+                beliefs[m] = self._update(self.views[m], beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
+        return (beliefs, *self._summary_of(beliefs, in_play))
 
     def observe_failed_grasp(self, T_world_gripper: jaxlie.SE3, settings: ActiveSettings = ActiveSettings()) -> None:
         """A grasp commanded at ``T_world_gripper`` failed (the jaws closed on nothing, or hit the
-        object): every map's belief learns where the object is not
+        object): the belief of every map in play learns where the object is not
         (:func:`~tactojax.localize.active.observe_failed_grasp`), and so does P(object). Before any
         touch it changes nothing. Compiles once per settings (:meth:`prepare_active`).
 
@@ -483,9 +498,10 @@ class Localizer:
             return
         program = self.prepare_active(settings)
         T_world_gripper = jaxlie.SE3(jnp.asarray(T_world_gripper.wxyz_xyz, jnp.float32))
-        beliefs = [program(view, grid, belief, T_world_gripper)
-                   for view, grid, belief in zip(self.views, self.marching_grids(), self.beliefs)]
-        self.beliefs, self._summary = beliefs, self._summary_of(beliefs)
+        beliefs = list(self.beliefs)
+        for m in np.flatnonzero(self.in_play):
+            beliefs[m] = program(self.views[m], self.marching_grids()[m], beliefs[m], T_world_gripper)
+        self.beliefs, (self._summary, self.in_play) = beliefs, self._summary_of(beliefs, self.in_play)
         self._fresh = True
 
     def marching_grids(self) -> tuple[MarchingGrid, ...]:
@@ -505,22 +521,28 @@ class Localizer:
                                                                  pose, settings).compile())
         return self._failed[1]
 
-    def _summary_of(self, beliefs: Sequence[PoseBelief]):
-        """What an estimate reports of every map's belief (None: no map explains the touches)."""
-        summaries = jax.device_get([self._summarise(b) for b in beliefs])
-        probabilities = object_probabilities([s.log_evidence for s in summaries])
+    def _summary_of(self, beliefs: Sequence[PoseBelief], in_play: np.ndarray):
+        """What an estimate reports of the beliefs of the maps in play (None: no map explains
+        the touches; the others have P(object) 0), and the maps still in play after it."""
+        indices = np.flatnonzero(in_play)
+        summaries = dict(zip(indices.tolist(), jax.device_get([self._summarise(beliefs[m]) for m in indices])))
+        log_evidence = np.full(len(self.views), -np.inf)
+        for m, summary in summaries.items():
+            log_evidence[m] = summary.log_evidence
+        probabilities = object_probabilities(log_evidence)
         if not probabilities.any():  # no map explains the touches
-            return None
+            return None, in_play
         chosen = int(np.argmax(probabilities))
         digest = summaries[chosen]
         modes = tuple((jaxlie.SE3(np.asarray(T)), float(p))
                       for T, p in zip(digest.mode_T_world_object, digest.mode_probability) if p > 0)
-        return (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
-                np.asarray(digest.T_world_object, np.float32), float(digest.probability_within), modes)
+        summary = (chosen, dict(zip(self.object_ids, probabilities.astype(float).tolist())),
+                   np.asarray(digest.T_world_object, np.float32), float(digest.probability_within), modes)
+        return summary, in_play & likely_objects(probabilities, self.live.object_tolerance)
 
-    def _land(self, beliefs: list[PoseBelief], summary) -> None:
+    def _land(self, beliefs: list[PoseBelief], summary, in_play: np.ndarray) -> None:
         """An update's result becomes the localizer's belief."""
-        self.beliefs, self._summary = beliefs, summary
+        self.beliefs, self._summary, self.in_play = beliefs, summary, in_play
         self.grasps += 1
         self._fresh = True
 

@@ -78,7 +78,7 @@ def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny
     report = tmp_path / "id.json"
     assert main(["identify", map_path, gum_box, "--test", str(folder / "test"), str(gum_box_test), "--model", model,
                  "--encoder", str(tiny_encoder_path), "--json", str(report), "--figure", str(tmp_path / "id.png")]) == 0
-    assert "P(object) from every map's pose belief" in capsys.readouterr().out
+    assert "P(object) from the pose beliefs of the maps in play" in capsys.readouterr().out
     assert (tmp_path / "id.png").stat().st_size > 0
     result = json.loads(report.read_text())
     assert result["objects"] == ["cylinder", "gum_box"]
@@ -89,6 +89,8 @@ def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny
     for row in result["results"]:
         assert 0.0 <= row["top1"] <= 1.0 and 0.0 <= row["mean_probability_of_truth"] <= 1.0
         assert set(row["per_object_top1"]) == {"cylinder", "gum_box"}
+        assert 1.0 <= row["mean_maps_weighed"] <= 2.0
+    assert result["results"][0]["mean_maps_weighed"] == 2.0  # the first grasp weighs every map
     # The confusion after the last grasp: one row per true object, its diagonal the top-1 hits.
     confusion = np.array(result["confusion"]["true_by_identified"])
     assert result["confusion"]["grasps"] == 2 and confusion.sum() == 5

@@ -41,3 +41,24 @@ def test_identify_similarities_are_cosine_similarities(bumps_map, ridges_map):
     expected = [np.max(1.0 - cdist(np.asarray(m.features, np.float64)[np.asarray(m.imprint_valid)],
                                    np.asarray(query, np.float64)[None], "cosine")) for m in maps]
     np.testing.assert_allclose(best, expected, atol=1e-6)
+
+
+def test_the_least_probable_objects_drop_out_up_to_the_tolerance():
+    from tactojax.localize._identify_episodes import likely_objects
+
+    p = np.array([[0.5, 0.0004, 0.0005, 0.4991, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]])
+    # Least probable first: 0.0, 0.0004, 0.0005 (cumulative 0.0009 <= 0.001); then 0.4991 would exceed it.
+    np.testing.assert_array_equal(likely_objects(p, 1e-3)[0], [True, False, False, True, False])
+    assert likely_objects(p, 1e-3)[1].all()  # no map explains the touches: every map stays
+    assert likely_objects(p, 0.0).all()
+    np.testing.assert_array_equal(likely_objects(p[0], 0.6), [True, False, False, False, False])
+
+
+def test_pruned_probabilities_leave_a_dropped_map_out_of_the_later_grasps():
+    from tactojax.localize._identify_episodes import object_probabilities, pruned_probabilities
+
+    log_evidence = np.log(np.array([[0.6, 0.3999, 0.0001], [0.1, 0.1, 0.8]]))  # (G, M): the third map recovers
+    pruned = pruned_probabilities(log_evidence, 1e-3)
+    np.testing.assert_allclose(pruned[0], object_probabilities(log_evidence[0]))
+    np.testing.assert_allclose(pruned[1], [0.5, 0.5, 0.0])  # dropped after grasp 1: out of play
+    np.testing.assert_allclose(pruned_probabilities(log_evidence, 0.0), object_probabilities(log_evidence))

@@ -78,7 +78,8 @@ def test_grasps_fuse_resets_and_no_contact_never_recompile(live, lookup_model, g
         assert all(e.object_id == maps[1].object_id and e.grasps == g + 1 for e in estimates[settle - 1:])
         assert not released[g].contact and not released[g].updated
         assert released[g].T_world_object is not None  # the belief stands between grasps
-        assert touches[g] == [min(g + 1, localizer.settings.max_touches)] * 2
+        # The gum box's belief holds every grasp; the cylinder's those before it dropped out.
+        assert touches[g][1] == min(g + 1, localizer.settings.max_touches) and 1 <= touches[g][0] <= touches[g][1]
     assert after_reset == (0, [0, 0])
     assert fused.updated and fused.grasps == 1 and not any(e.updated for e in again)
     errors = [_symmetric_error(localizer.views[1], maps[1], index, estimates[settle - 1].T_object_sensor, T_true)
@@ -163,7 +164,35 @@ def test_a_background_update_lands_later_with_the_same_belief(live, grasp_frames
     assert background[-1].probability_within == synchronous[-1].probability_within
 
 
-def test_a_failed_grasp_reweighs_every_maps_belief(live, grasp_frames):
+def test_a_map_all_but_ruled_out_drops_out_of_play_until_the_reset(live, grasp_frames):
+    """After a grasp, the maps whose P(object) together is at most ``object_tolerance`` are not
+    updated again (their P(object) 0) until the reset; with a tolerance of 0 every map is."""
+    localizer, maps, _ = live
+    grasps = [grasp_frames(maps[1], int(i), T_WORLD_OBJECT) for i in _grasp_indices(maps[1], 2)]
+    every = localizer.live
+    try:
+        for tolerance in (0.0, 0.5):  # 0.5: every map but the gum box's is all but ruled out
+            localizer.live = dataclasses.replace(every, object_tolerance=tolerance)
+            localizer.reset()
+            first = localizer.fuse(*grasps[0][:3])
+            second = localizer.fuse(*grasps[1][:3])
+            p_cylinder = first.object_probabilities[maps[0].object_id]
+            assert first.object_id == maps[1].object_id and 0.0 < p_cylinder < 0.5
+            if tolerance == 0.0:
+                assert localizer.in_play.all() and [_touches(b) for b in localizer.beliefs] == [2, 2]
+                assert second.object_probabilities[maps[0].object_id] > 0.0
+            else:
+                assert localizer.in_play.tolist() == [False, True]
+                assert [_touches(b) for b in localizer.beliefs] == [1, 2]
+                assert second.object_probabilities == {maps[0].object_id: 0.0, maps[1].object_id: 1.0}
+        localizer.reset()
+        assert localizer.in_play.all()
+    finally:
+        localizer.live = every
+        localizer.reset()
+
+
+def test_a_failed_grasp_reweighs_every_maps_belief_in_play(live, grasp_frames):
     from tactojax.localize.active import ActiveSettings, map_marching_grid, observe_failed_grasp
 
     localizer, maps, _ = live
@@ -174,11 +203,12 @@ def test_a_failed_grasp_reweighs_every_maps_belief(live, grasp_frames):
     assert localizer.grasps == 0 and all(not np.isfinite(np.asarray(b.log_weights)).any() for b in localizer.beliefs)
     image, opening, T_world_gripper, _ = grasp_frames(maps[1], int(_grasp_indices(maps[1], 2)[1]), T_WORLD_OBJECT)
     localizer.fuse(image, opening, T_world_gripper)
-    before = list(localizer.beliefs)
+    before, in_play = list(localizer.beliefs), localizer.in_play.copy()
     localizer.observe_failed_grasp(T_world_gripper, settings)  # the same grasp again, as if it had failed
-    assert localizer.grasps == 1
-    for view, prior, posterior in zip(localizer.views, before, localizer.beliefs):
+    assert localizer.grasps == 1 and in_play[localizer.object_ids.index(maps[1].object_id)]
+    for view, prior, posterior, played in zip(localizer.views, before, localizer.beliefs, in_play):
         expected = observe_failed_grasp(view, map_marching_grid(view), prior, T_world_gripper, settings)
+        expected = expected if played else prior  # a map out of play is not updated
         np.testing.assert_allclose(np.asarray(posterior.log_weights), np.asarray(expected.log_weights), atol=1e-5)
     # The grasp closes on the object where the belief puts it: its failure is unlikely under
     # this map, and the map's evidence (P(object)) says so.
