@@ -119,7 +119,8 @@ class LiveEstimate:
     object_id: str | None
     """The most probable object (None before any settled grasp)."""
     object_probabilities: dict[str, float]
-    """P(object) of every map (1.0 with a single map once it has a touch)."""
+    """P(object) of every map (1.0 with a single map once it has a touch; 0 for a map out of play,
+    :attr:`Localizer.in_play`)."""
     T_object_sensor: jaxlie.SE3 | None
     """This frame's sensor pose in that object's frame, mm (the belief's best pose, moved with
     the gripper since the grasp that set it)."""
