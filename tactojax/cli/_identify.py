@@ -68,6 +68,7 @@ def run_new_grasps(args) -> int:
     from tactojax.io import read_test_grasps, resolve_shape_model
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import calibration_to_json
+    from tactojax.localize._identify_episodes import maps_in_play
     from tactojax.localize.evaluation import identify_episodes
     from tactojax.viz import confusion_figure, save_png
 
@@ -89,7 +90,7 @@ def run_new_grasps(args) -> int:
             identified[name] = np.argmax(p, axis=-1)
             correct[name] = identified[name] == names.index(name)
             probability[name] = p[..., names.index(name)]
-            weighed[name] = np.sum(p > 0, axis=-1)  # the maps in play (the others were ruled out before)
+            weighed[name] = maps_in_play(p, args.object_tolerance).sum(axis=-1)
     grasps = min(c.shape[1] for c in correct.values())
     rows, results = [], []
     for k in range(grasps):

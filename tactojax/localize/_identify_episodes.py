@@ -94,6 +94,16 @@ def likely_objects(probabilities, tolerance: float = OBJECT_TOLERANCE) -> np.nda
     return ~dropped | nothing | (tolerance == 0)
 
 
+def maps_in_play(probabilities, tolerance: float = OBJECT_TOLERANCE) -> np.ndarray:
+    """(..., G, M) which maps each of G grasps updates, from the P(object) after every grasp
+    (:func:`pruned_probabilities`): every map at the first, then those :func:`likely_objects`
+    kept after each grasp before it."""
+    probabilities = np.asarray(probabilities)
+    kept = likely_objects(probabilities[..., :-1, :], tolerance)
+    in_play = np.concatenate([np.ones_like(kept[..., :1, :]), kept], axis=-2)
+    return np.logical_and.accumulate(in_play, axis=-2)
+
+
 def pruned_probabilities(log_evidence, tolerance: float = OBJECT_TOLERANCE) -> np.ndarray:
     """(..., G, M) P(object) after each of G grasps from the maps' log evidence after each,
     a map left out from the grasp after the one that dropped it (:func:`likely_objects`)."""

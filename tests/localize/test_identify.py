@@ -62,3 +62,12 @@ def test_pruned_probabilities_leave_a_dropped_map_out_of_the_later_grasps():
     np.testing.assert_allclose(pruned[0], object_probabilities(log_evidence[0]))
     np.testing.assert_allclose(pruned[1], [0.5, 0.5, 0.0])  # dropped after grasp 1: out of play
     np.testing.assert_allclose(pruned_probabilities(log_evidence, 0.0), object_probabilities(log_evidence))
+
+
+def test_the_maps_in_play_at_each_grasp_follow_from_the_probabilities():
+    from tactojax.localize._identify_episodes import maps_in_play, pruned_probabilities
+
+    log_evidence = np.log(np.array([[0.6, 0.3999, 0.0001], [0.1, 0.1, 0.8], [0.5, 0.2, 0.3]]))
+    in_play = maps_in_play(pruned_probabilities(log_evidence, 1e-3), 1e-3)
+    np.testing.assert_array_equal(in_play, [[True, True, True], [True, True, False], [True, True, False]])
+    assert maps_in_play(pruned_probabilities(log_evidence, 0.0), 0.0).all()
