@@ -98,7 +98,7 @@ class LiveSettings:
     object_tolerance: float = OBJECT_TOLERANCE
     """P(object) a grasp may drop: after it, the least probable maps that together hold at most
     this much are no longer updated (P(object) 0) until :meth:`Localizer.reset` (0: every map
-    stays; :func:`~tactojax.localize._identify_episodes.likely_objects`)."""
+    stays; :func:`~tactojax.localize.evaluation.likely_objects`)."""
 
     def __post_init__(self):
         if self.settle_frames < 1:

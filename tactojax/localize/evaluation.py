@@ -24,6 +24,8 @@ from tactojax.localize._evaluate import moment_rmse as moment_rmse
 from tactojax.localize._evaluate import oracle_imprints as oracle_imprints
 from tactojax.localize._identify import evaluate_identification as evaluate_identification
 from tactojax.localize._identify_episodes import identify_episodes as identify_episodes
+from tactojax.localize._identify_episodes import likely_objects as likely_objects
+from tactojax.localize._identify_episodes import maps_in_play as maps_in_play
 from tactojax.localize._map import map_touch as map_touch
 from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
@@ -42,9 +44,11 @@ __all__ = [
     "evaluate_new_grasps",
     "fit_found_probability",
     "identify_episodes",
+    "likely_objects",
     "load_test_episodes",
     "map_size_study",
     "map_touch",
+    "maps_in_play",
     "moment_rmse",
     "oracle_imprints",
     "predict_within",
