@@ -68,8 +68,7 @@ def run_new_grasps(args) -> int:
     from tactojax.io import read_test_grasps, resolve_shape_model
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import calibration_to_json
-    from tactojax.localize._identify_episodes import maps_in_play
-    from tactojax.localize.evaluation import identify_episodes
+    from tactojax.localize.evaluation import identify_episodes, maps_in_play
     from tactojax.viz import confusion_figure, save_png
 
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)

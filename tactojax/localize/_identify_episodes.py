@@ -84,8 +84,8 @@ def likely_objects(probabilities, tolerance: float = OBJECT_TOLERANCE) -> np.nda
     P(object) (over the last axis) sums to at most ``tolerance``. Every map stays where
     ``tolerance`` is 0 or no map has any probability (no map explains the touches)."""
     probabilities = np.asarray(probabilities, np.float64)
-    if tolerance < 0:
-        raise ValueError(f"object_tolerance must be >= 0, got {tolerance}")
+    if not 0.0 <= tolerance < 1.0:  # 1 or more would drop every map
+        raise ValueError(f"object_tolerance must be in [0, 1), got {tolerance}")
     order = np.argsort(probabilities, axis=-1, kind="stable")  # least probable first
     dropped_sorted = np.cumsum(np.take_along_axis(probabilities, order, axis=-1), axis=-1) <= tolerance
     dropped = np.zeros(probabilities.shape, bool)

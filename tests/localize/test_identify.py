@@ -2,6 +2,7 @@
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from tactojax.localize._identify import MapLibrary, evaluate_identification, identify
 
@@ -52,6 +53,9 @@ def test_the_least_probable_objects_drop_out_up_to_the_tolerance():
     assert likely_objects(p, 1e-3)[1].all()  # no map explains the touches: every map stays
     assert likely_objects(p, 0.0).all()
     np.testing.assert_array_equal(likely_objects(p[0], 0.6), [True, False, False, False, False])
+    for tolerance in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="object_tolerance"):
+            likely_objects(p, tolerance)
 
 
 def test_pruned_probabilities_leave_a_dropped_map_out_of_the_later_grasps():
