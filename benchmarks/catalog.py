@@ -3,10 +3,12 @@
 For every count N of ``--counts`` (default 1, 5, 20, 50, 100; counts above the maps given are
 left out), the first N maps of the catalog, as the live loop holds them:
 
-- **memory**: the maps padded to one shape (the localizer's ``views``), MB and kB per valid imprint;
+- **memory**: the maps as the localizer holds them (one :class:`~tactojax.localize.StackedMaps`:
+  each map's own imprints and surface, plus one window of padding), MB and kB per valid imprint;
 - **build**: ``Localizer(maps, ...)`` wall time, with the surfaces the map files store (a map
   without one has it built then, 1-4 s a map), and its ``compile_s`` (every program compiled
-  once for all maps: padding makes the update's program the same for one map or a hundred);
+  once for all maps: every map's window of the stack has one shape, so the update's program is
+  the same for one map or a hundred);
 - **latency**: a first grasp's update (``Localizer.fuse`` after a reset, in the foreground: every
   map's belief), a second grasp's (the same touch again: the maps still in play,
   ``LiveSettings.object_tolerance``, and how many), and a frame between updates (no contact);
@@ -49,9 +51,9 @@ except ImportError:
 DEFAULT_COUNTS = "1,5,20,50,100"
 
 
-def map_megabytes(views) -> float:
+def map_megabytes(stack) -> float:
     """Bytes of every array of the maps (as the live loop holds them), MB."""
-    return sum(leaf.nbytes for view in views for leaf in jax.tree.leaves(view)) / 1e6
+    return stack.nbytes / 1e6
 
 
 def median_ms(call, repeats: int) -> float:
@@ -82,7 +84,7 @@ def one_count(maps, surfaces, count: int, model, encoder, frame, args) -> dict:
     start = time.perf_counter()
     localizer = Localizer(chosen, model, encoder, surfaces=surfaces[:count])
     build_s = time.perf_counter() - start
-    views = localizer.views  # the maps padded to one shape, as the live loop holds them
+    stack = localizer.stack  # the maps as the live loop holds them
     image, opening, released = frame
 
     def update():
@@ -95,8 +97,8 @@ def one_count(maps, surfaces, count: int, model, encoder, frame, args) -> dict:
         jax.block_until_ready(localizer.fuse(image, opening).T_world_object)
         return time.perf_counter() - start
 
-    row = {"maps": count, "imprints": imprints, "memory_mb": map_megabytes(views),
-           "kb_per_imprint": 1e3 * map_megabytes(views) / max(imprints, 1), "build_s": build_s,
+    row = {"maps": count, "imprints": imprints, "memory_mb": map_megabytes(stack),
+           "kb_per_imprint": 1e3 * map_megabytes(stack) / max(imprints, 1), "build_s": build_s,
            "compile_s": localizer.compile_s, "update_ms": median_ms(update, args.repeats),
            "second_update_ms": 1e3 * float(np.median([second_update() for _ in range(args.repeats)])),
            "in_play_after_first": int(localizer.in_play.sum()),

@@ -20,6 +20,7 @@ beliefs whose best pose was within 2 mm (observed), and the log loss before and 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import jax
 import numpy as np
@@ -101,7 +102,9 @@ def main() -> None:
     args = parse_args()
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     default = BeliefCalibration.default()
-    complete = default.replace(found_offset=np.float32(8.0), found_slope=np.float32(0.0))  # the search assumed complete
+    # The search assumed complete: the search term at BeliefCalibration's own defaults.
+    complete = default.replace(**{f.name: f.default for f in dataclasses.fields(BeliefCalibration)
+                                  if f.name.startswith("found_")})
     recorded = {}
     for tactile_map, _ in load_maps(args, model, encoder):
         episodes, _ = load_test_episodes(grasps_of(args, tactile_map.object_id), tactile_map.object_id, model, encoder,

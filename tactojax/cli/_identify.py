@@ -62,9 +62,10 @@ def run(args) -> int:
 
 def run_new_grasps(args) -> int:
     """``identify MAP... --test DIR...``: P(object) from every map's belief over each episode."""
+    import jax
     import numpy as np
 
-    from tactojax.cli._maps import localization_views, maps_and_query_encoder
+    from tactojax.cli._maps import maps_and_query_encoder, stacked_localization_maps
     from tactojax.io import read_test_grasps, resolve_shape_model
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import calibration_to_json
@@ -74,8 +75,8 @@ def run_new_grasps(args) -> int:
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     names = [m.object_id for m in maps]
     model = resolve_shape_model(args.model)
-    catalog, _ = localization_views(args.maps, maps, args.encoder, shared=True)
-    calibration = catalog[0].calibration  # the maps' median: one calibration, so that evidences compare
+    catalog, _ = stacked_localization_maps(args.maps, maps, args.encoder, shared=True)
+    calibration = jax.tree.map(lambda x: x[0], catalog.calibration)  # the maps' median: one calibration, so that evidences compare
     correct, probability, identified, weighed = {}, {}, {}, {}  # object -> (E, G) arrays
     for directory in args.test:
         for name in sorted(set(read_test_grasps(directory, ["opening_mm"])["object_id"].tolist())):

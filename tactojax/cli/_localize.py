@@ -166,7 +166,7 @@ def _run_belief(args, map_paths, maps, image_paths, openings, poses, observed, s
     import numpy as np
 
     from tactojax.cli._belief import belief_summary, position_and_angles
-    from tactojax.cli._maps import localization_views
+    from tactojax.cli._maps import stacked_localization_maps
     from tactojax.geometry import opposite_sensor_pose, sensor_pose
     from tactojax.localize import Touch, localize
     from tactojax.localize._identify_episodes import object_probabilities
@@ -177,8 +177,9 @@ def _run_belief(args, map_paths, maps, image_paths, openings, poses, observed, s
         for (heightmap, mask, feature), finger_pose in fingers:
             touches.append(Touch(heightmap=heightmap, mask=mask, feature=feature, opening=np.float32(opening)))
             T_world_sensor.append(finger_pose(T_world_gripper, np.float32(opening)))
-    views, calibrated = localization_views(map_paths, maps, args.encoder)
-    summaries = [belief_summary(localize(view, touches, T_world_sensor), args.modes) for view in views]
+    stack, calibrated = stacked_localization_maps(map_paths, maps, args.encoder)
+    summaries = [belief_summary(localize(stack.window(m), touches, T_world_sensor), args.modes)
+                 for m in range(len(stack))]
     probabilities = object_probabilities([s["log_evidence"] for s in summaries])
     names = [m.object_id for m in maps]
     frame = "world" if args.gripper_poses else "gripper frame"

@@ -68,17 +68,18 @@ def stored_calibration(path, encoder_name: str | None):
     return calibration_from_json(fit)
 
 
-def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = True):
+def stacked_localization_maps(paths, maps, encoder_name: str | None, *, shared: bool = True):
     """Each map's :class:`~tactojax.localize.LocalizationMap` with the belief calibration and the
     surface its file stores (:func:`stored_calibration`, :func:`~tactojax.io.stored_surface`); with ``shared`` and several maps, all under their median
     (:func:`~tactojax.localize.shared_calibration`), so that their evidences compare (P(object));
-    all padded to one shape (:func:`~tactojax.localize.shared_shapes`).
+    stacked into one structure (:class:`~tactojax.localize.StackedMaps`: one compiled program for
+    every map, no map padded to the largest).
 
     Returns:
-        (views, calibrated): the views, and whether any map holds a calibration.
+        (stack, calibrated): the maps, and whether any map holds a calibration.
     """
     from tactojax.io import stored_surface
-    from tactojax.localize import LocalizationMap, shared_calibration, shared_shapes
+    from tactojax.localize import LocalizationMap, StackedMaps, shared_calibration
 
     calibrations = [stored_calibration(path, encoder_name) for path in paths]
     calibrated = any(c is not None for c in calibrations)
@@ -86,8 +87,7 @@ def localization_views(paths, maps, encoder_name: str | None, *, shared: bool = 
         calibrations = [shared_calibration(calibrations)] * len(maps)
     views = [LocalizationMap.from_tactile_map(m, calibration=c, surface=stored_surface(path))
              for path, m, c in zip(paths, maps, calibrations)]
-    # One shape for all maps: the belief compiles once, not once per map.
-    return shared_shapes(views), calibrated
+    return StackedMaps.from_maps(views), calibrated
 
 
 def is_symmetric(tactile_map) -> bool:

@@ -145,7 +145,7 @@ def active_episode(
             chosen, start = "active", time.perf_counter()
             m = _chosen_map(localizer, estimate)
             localizer.prepare_active(settings)  # the grids, and the program a failed grasp runs: compiled now
-            view, grid, belief = localizer.views[m], localizer.marching_grids()[m], localizer.beliefs[m]
+            view, grid, belief = localizer.stack.window(m), localizer.marching_grids().grid(m), localizer.beliefs[m]
             proposals, _ = propose_grasps(jax.random.fold_in(key, charged), view, grid, belief, candidates, settings)
             ranking = next_grasp(view, grid, belief, proposals, settings)
             best = int(ranking.order[0])

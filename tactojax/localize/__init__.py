@@ -39,8 +39,8 @@ from tactojax.localize._localizer import Localizer as Localizer
 from tactojax.localize._localizer import touch_from_image as touch_from_image
 from tactojax.localize._map import BeliefCalibration as BeliefCalibration
 from tactojax.localize._map import LocalizationMap as LocalizationMap
-from tactojax.localize._map import shared_shapes as shared_shapes
 from tactojax.localize._map import Touch as Touch
+from tactojax.localize._stacked_maps import StackedMaps as StackedMaps
 from tactojax.localize._surface import MapSurface as MapSurface
 from tactojax.localize._surface import SurfaceSettings as SurfaceSettings
 from tactojax.localize._surface import build_map_surface as build_map_surface
@@ -60,6 +60,7 @@ __all__ = [
     "MapLibrary",
     "MapSurface",
     "PoseBelief",
+    "StackedMaps",
     "SurfaceSettings",
     "Touch",
     "Tracker",
@@ -73,7 +74,6 @@ __all__ = [
     "identify",
     "localize",
     "shared_calibration",
-    "shared_shapes",
     "touch_from_image",
     "update_belief",
 ]

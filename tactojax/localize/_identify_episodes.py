@@ -21,7 +21,8 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._belief import BeliefSettings
 from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs, fused_steps
-from tactojax.localize._map import BeliefCalibration, LocalizationMap, shared_shapes
+from tactojax.localize._map import BeliefCalibration, LocalizationMap
+from tactojax.localize._stacked_maps import StackedMaps
 
 OBJECT_TOLERANCE = 1e-5
 """P(object) that a grasp may drop: the least probable maps that together hold at most this much
@@ -41,7 +42,7 @@ def shared_calibration(calibrations: list[BeliefCalibration | None]) -> BeliefCa
 
 
 def identify_episodes(
-    maps: list[LocalizationMap],
+    maps: StackedMaps | list[LocalizationMap],
     episodes: TestEpisodes,
     *,
     fingers: int = 2,
@@ -53,7 +54,7 @@ def identify_episodes(
     """P(object) after each grasp of every episode, over a catalog of maps.
 
     Args:
-        maps: every object's map.
+        maps: every object's map (a :class:`~tactojax.localize.StackedMaps`, or the maps to stack).
         episodes: E episodes of G grasps (the only kinematics used: poses relative to the first touch).
         fingers: fingers fused per grasp.
         calibration: the one calibration every belief runs with (default: uncalibrated; see
@@ -70,13 +71,14 @@ def identify_episodes(
     """
     calibration = BeliefCalibration.default() if calibration is None else calibration
     grasps = episodes.openings.shape[1]
-    # One shape for every map: the belief compiles once for the catalog.
-    views = shared_shapes([view.replace(calibration=calibration) for view in maps])
+    # Every map's window of the stack has one shape: the belief compiles once for the catalog.
+    stack = (maps if isinstance(maps, StackedMaps) else StackedMaps.from_maps(maps)).with_calibration(calibration)
     log_evidence = np.stack([
-        episode_beliefs(view, episodes, fingers=fingers, settings=settings).log_evidence[:, fused_steps(grasps, fingers)]
-        for view in tqdm(views, desc="beliefs (map)", disable=not progress)], axis=-1)
+        episode_beliefs(stack.window(m), episodes, fingers=fingers,
+                        settings=settings).log_evidence[:, fused_steps(grasps, fingers)]
+        for m in tqdm(range(len(stack)), desc="beliefs (map)", disable=not progress)], axis=-1)
     probabilities = pruned_probabilities(log_evidence, object_tolerance)
-    return np.where(probabilities.sum(axis=-1, keepdims=True) > 0, probabilities, 1.0 / len(maps))
+    return np.where(probabilities.sum(axis=-1, keepdims=True) > 0, probabilities, 1.0 / len(stack))
 
 
 def likely_objects(probabilities, tolerance: float = OBJECT_TOLERANCE) -> np.ndarray:

@@ -53,8 +53,9 @@ from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest,
 from tactojax.localize._identify_episodes import (OBJECT_TOLERANCE, likely_objects, object_probabilities,
                                                   shared_calibration)
 from tactojax.localize._localize import update_program
-from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong, shared_shapes
-from tactojax.localize._predict_touch import MarchingGrid, map_marching_grid
+from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _strong
+from tactojax.localize._stacked_maps import StackedMaps
+from tactojax.localize._predict_touch import StackedMarchingGrids, map_marching_grid
 from tactojax.localize._surface import MapSurface
 from tactojax.mapping import TactileMap, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
@@ -290,9 +291,10 @@ class Localizer:
         self.object_ids = tuple(m.object_id for m in maps)
         self.image_shape = (*model.image_shape, 3)
         self.settings, self.live = settings, live
-        self.views = tuple(shared_shapes([
-            LocalizationMap.from_tactile_map(m, calibration=c, surface=s)
-            for m, c, s in zip(maps, calibrations, surfaces)]))
+        self.stack = StackedMaps.from_maps([LocalizationMap.from_tactile_map(m, calibration=c, surface=s)
+                                            for m, c, s in zip(maps, calibrations, surfaces)])
+        """The maps as localization reads them, in one structure (:meth:`StackedMaps.map` gives map
+        ``m`` as it was built, :meth:`StackedMaps.window` its window of the stack)."""
         start = time.perf_counter()
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
         # On the device once (a model of NumPy arrays would be copied to an accelerator every frame).
@@ -307,13 +309,13 @@ class Localizer:
                               feature=jax.ShapeDtypeStruct((encoder.feature_dim,), jnp.float32),
                               opening=jax.ShapeDtypeStruct((), jnp.float32))
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-        # Strongly typed, as every updated belief is (a weak type would not match them).
-        self._empty = tuple(jax.tree.map(_strong, empty_belief(view, settings)) for view in self.views)
-        # The maps share one shape (shared_shapes): one compilation serves them all.
-        # The program every per-touch update runs (localize's): a process that also localizes
-        # or evaluates compiles it once.
-        self._update = update_program.lower(self.views[0], self._empty[0], example_touch, pose, np.int32(-1),
-                                            settings).compile()
+        # Strongly typed, as every updated belief is (a weak type would not match them). Every
+        # map's window of the stack has one shape: its belief too, and one compilation serves them all.
+        empty = jax.jit(lambda stack, m: jax.tree.map(_strong, empty_belief(stack.view(m), settings)))
+        self._empty = tuple(empty(self.stack, np.int32(m)) for m in range(len(self.stack)))
+        # The program every per-touch update runs (localize's), on the map's window of the stack.
+        self._update = jax.jit(_stacked_update, static_argnums=6).lower(
+            self.stack, np.int32(0), self._empty[0], example_touch, pose, np.int32(-1), settings).compile()
         self._summarise = belief_digest.lower(self._empty[0], live.modes).compile()
         scalar = jax.ShapeDtypeStruct((), jnp.float32)
         # A frame's pose arithmetic runs on the host's CPU whatever the default device: on an
@@ -340,7 +342,7 @@ class Localizer:
         self.beliefs = list(self._empty)
         """Every map's :class:`~tactojax.localize.PoseBelief` (inspect, plot, or save it); a map
         out of play (:attr:`in_play`) keeps the belief it had when it dropped out."""
-        self.in_play = np.ones(len(self.views), bool)
+        self.in_play = np.ones(len(self.stack), bool)
         """(M,) the maps a grasp updates: those not yet ruled out since the reset
         (:attr:`LiveSettings.object_tolerance`)."""
         self.grasps = 0
@@ -480,7 +482,8 @@ class Localizer:
         beliefs = list(beliefs)
         for m in np.flatnonzero(in_play):
             for touch, T_world_touch in touches:
-                beliefs[m] = self._update(self.views[m], beliefs[m], touch, jaxlie.SE3(T_world_touch), np.int32(-1))
+                beliefs[m] = self._update(self.stack, np.int32(m), beliefs[m], touch, jaxlie.SE3(T_world_touch),
+                                          np.int32(-1))
         return (beliefs, *self._summary_of(beliefs, in_play))
 
     def observe_failed_grasp(self, T_world_gripper: jaxlie.SE3, settings: ActiveSettings = ActiveSettings()) -> None:
@@ -501,15 +504,17 @@ class Localizer:
         T_world_gripper = jaxlie.SE3(jnp.asarray(T_world_gripper.wxyz_xyz, jnp.float32))
         beliefs = list(self.beliefs)
         for m in np.flatnonzero(self.in_play):
-            beliefs[m] = program(self.views[m], self.marching_grids()[m], beliefs[m], T_world_gripper)
+            beliefs[m] = program(self.stack, np.int32(m), self.marching_grids(), beliefs[m], T_world_gripper)
         self.beliefs, (self._summary, self.in_play) = beliefs, self._summary_of(beliefs, self.in_play)
         self._fresh = True
 
-    def marching_grids(self) -> tuple[MarchingGrid, ...]:
+    def marching_grids(self) -> StackedMarchingGrids:
         """Every map's :class:`~tactojax.localize.active.MarchingGrid` (what active touch predicts
-        grasps with), built on first use."""
+        grasps with; ``.grid(m)`` gives map ``m``'s), built on first use, each on its map's own
+        grid."""
         if self._grids is None:
-            self._grids = tuple(map_marching_grid(view) for view in self.views)
+            self._grids = StackedMarchingGrids.from_grids(map_marching_grid(self.stack.map(m))
+                                                          for m in range(len(self.stack)))
         return self._grids
 
     def prepare_active(self, settings: ActiveSettings = ActiveSettings()):
@@ -518,8 +523,10 @@ class Localizer:
         episode compiles. Returns the compiled program."""
         if self._failed is None or self._failed[0] != settings:
             pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-            self._failed = (settings, observe_failed_grasp.lower(self.views[0], self.marching_grids()[0], self._empty[0],
-                                                                 pose, settings).compile())
+            program = jax.jit(lambda stack, m, grids, belief, T_world_gripper: observe_failed_grasp(
+                stack.view(m), grids.grid(m), belief, T_world_gripper, settings))
+            self._failed = (settings, program.lower(self.stack, np.int32(0), self.marching_grids(), self._empty[0],
+                                                    pose).compile())
         return self._failed[1]
 
     def _summary_of(self, beliefs: Sequence[PoseBelief], in_play: np.ndarray):
@@ -527,7 +534,7 @@ class Localizer:
         the touches; the others have P(object) 0), and the maps still in play after it."""
         indices = np.flatnonzero(in_play)
         summaries = dict(zip(indices.tolist(), jax.device_get([self._summarise(beliefs[m]) for m in indices])))
-        log_evidence = np.full(len(self.views), -np.inf)
+        log_evidence = np.full(len(self.stack), -np.inf)
         for m, summary in summaries.items():
             log_evidence[m] = summary.log_evidence
         probabilities = object_probabilities(log_evidence)
@@ -564,6 +571,11 @@ class Localizer:
                             T_object_sensor=T_object_sensor, T_world_object=jaxlie.SE3(T_world_object),
                             probability_within=within, modes=modes, contact=contact, grasps=self.grasps,
                             updated=updated, latency_s=latency_s, pending=pending)
+
+
+def _stacked_update(stack: StackedMaps, m, belief, touch, T_world_sensor, exclude, settings):
+    """:func:`~tactojax.localize._localize.update_program` on map ``m`` of the stack."""
+    return update_program(stack.view(m), belief, touch, T_world_sensor, exclude, settings)
 
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], np.float32)

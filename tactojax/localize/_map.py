@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -182,7 +181,7 @@ class LocalizationMap:
     @property
     def symmetric(self) -> bool:
         """Whether the object has a symmetry beyond the identity: a continuous axis, or a copy
-        that is not the identity (the identity copies :func:`shared_shapes` pads with do not
+        that is not the identity (the identity copies :class:`~tactojax.localize.StackedMaps` pads with do not
         count). Host-side (reads the arrays)."""
         copies = np.asarray(self.symmetries.wxyz_xyz)
         identity = np.asarray(jaxlie.SE3.identity().wxyz_xyz)
@@ -291,37 +290,3 @@ def _continuous_symmetry(symmetry: ObjectSymmetry, given) -> dict[str, jax.Array
     (zeros for a group without one)."""
     axis, centre = given if given is not None else symmetry.continuous_axis()
     return {"symmetry_axis": jnp.asarray(axis, jnp.float32), "symmetry_centre": jnp.asarray(centre, jnp.float32)}
-
-
-def shared_shapes(views: Sequence[LocalizationMap]) -> list[LocalizationMap]:
-    """The maps padded to one shape, so that everything that reads them compiles once for all
-    (maps that already share one are returned as they are):
-    invalid imprints up to the largest map's count, surface grids extended on their far sides with
-    unknown blocks up to the largest grid's and holding as many stored blocks as the most,
-    symmetry lists with identity copies up to the longest (a copy of the identity changes no
-    distance up to symmetry).
-
-    Raises:
-        ValueError: the maps differ in what cannot be padded (pixel pitch, grid pitch, feature size).
-    """
-    views = list(views)
-    if len(views) < 2:
-        return views
-    for name, value in (("mm_per_px", lambda v: v.mm_per_px), ("surface pitch", lambda v: v.surface.pitch_mm),
-                        ("feature size", lambda v: v.features.shape[1]), ("image size", lambda v: v.packed_heightmaps.shape[1:])):
-        if len({value(v) for v in views}) > 1:
-            raise ValueError(f"the maps differ in {name} ({[value(v) for v in views]}): they cannot share one shape")
-    if len({tuple(jnp.shape(x) for x in jax.tree.leaves(view)) for view in views}) == 1:
-        return views  # already one shape (maps padded before)
-    count = max(len(v) for v in views)
-    grid = tuple(max(v.surface.block_index.shape[axis] for v in views) for axis in range(3))
-    blocks = max(v.surface.blocks.shape[0] for v in views)
-    copies = max(v.symmetries.wxyz_xyz.shape[0] for v in views)
-
-    def extended(view: LocalizationMap) -> LocalizationMap:
-        symmetries = np.asarray(view.symmetries.wxyz_xyz)
-        identity = np.broadcast_to(np.asarray(jaxlie.SE3.identity().wxyz_xyz), (copies - symmetries.shape[0], 7))
-        return view.padded_to(count).replace(surface=view.surface.padded_to(grid, blocks),
-                                             symmetries=jaxlie.SE3(jnp.asarray(np.concatenate([symmetries, identity]))))
-
-    return [extended(view) for view in views]

@@ -72,12 +72,17 @@ class MapSurface:
     """Signed distance (mm) from every cell centre of the kept blocks (``C = BLOCK + 1`` cells a
     side) to the surface: > 0 outside the object; NaN where no stored point lies within
     ``reach_mm``. Block 0 knows nothing (every block without a known cell points to it)."""
-    block_index: Int[Array, "I J K"]
-    """Which of ``blocks`` holds each block of the grid (0: none known)."""
+    block_index: Int[Array, "I J K"] | Int[Array, "L"]
+    """Which of ``blocks`` holds each block of the grid (0: none known); flat, row-major, where
+    ``grid`` is given."""
     origin: Float[Array, "3"]
     """Object-frame position of cell (0, 0, 0), mm."""
     pitch_mm: float = struct.field(pytree_node=False)
     """Grid step, mm."""
+    grid: Int[Array, "3"] | None = None
+    """Blocks along each axis when they are data, not ``block_index``'s shape: a map's surface
+    within a :class:`~tactojax.localize.StackedMaps`, whose maps share one ``blocks`` array and
+    one flat index (read inside jit only; None for a map's own surface)."""
 
     @staticmethod
     def from_dense(distance: Float[Array, "X Y Z"], origin: Float[Array, "3"], pitch_mm: float) -> MapSurface:
@@ -101,7 +106,9 @@ class MapSurface:
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        """Cells along each axis of the grid (whole blocks)."""
+        """Cells along each axis of the grid (whole blocks; a map's own surface only)."""
+        if self.grid is not None:
+            raise ValueError("a surface within a StackedMaps has no static shape: StackedMaps.map gives the map's own")
         return tuple(int(n) * BLOCK for n in self.block_index.shape)
 
     @property
@@ -129,8 +136,11 @@ class MapSurface:
         value (one corner instead of eight: for screening thousands of coarse candidates, off
         by up to ``pitch_mm * sqrt(3) / 2`` in position). Unknown distances read 0.
         """
-        shape = np.array(self.shape)
-        grid = np.array(self.block_index.shape)
+        # Static for a map's own surface; data within a stack (the same arithmetic, traced).
+        grid = np.array(self.block_index.shape) if self.grid is None else self.grid
+        shape = grid * BLOCK
+        strides = (np.array([grid[1] * grid[2], grid[2], 1], np.int32) if self.grid is None
+                   else jnp.stack([grid[1] * grid[2], grid[2], jnp.ones_like(grid[2])]).astype(jnp.int32))
         side = BLOCK + 1
         in_block = np.array([side * side, side, 1], np.int32)  # a cell's step along each axis of a stored block
         cell = (p_object - self.origin) / self.pitch_mm
@@ -139,7 +149,7 @@ class MapSurface:
         low = jnp.clip(jnp.floor(cell) if interpolate else jnp.round(cell), 0, last).astype(jnp.int32)
         # low >= 0 and BLOCK a power of two: shifts and masks (integer division is slow on a CPU).
         block, within = low >> _BLOCK_BITS, low & (BLOCK - 1)
-        slot = self.block_index.reshape(-1)[block @ np.array([grid[1] * grid[2], grid[2], 1], np.int32)]
+        slot = self.block_index.reshape(-1)[block @ strides]
         base = slot * side**3 + within @ in_block  # the cell, in its block
         corners = np.array(list(np.ndindex(2, 2, 2))) if interpolate else np.zeros((1, 3), int)
         stored = self.blocks.reshape(-1)[base[..., None] + corners @ in_block]

@@ -35,7 +35,6 @@ Every program (the localizer's, and one tracking program per map) is compiled at
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -225,9 +224,9 @@ class Tracker:
                       mask=jax.ShapeDtypeStruct(model.image_shape, jnp.bool_), feature=_NO_FEATURE,
                       opening=_NO_OPENING)
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-        frame = jax.jit(functools.partial(_track_frame, tracking=tracking, settings=icp))
-        # The localizer's maps share one shape (shared_shapes): one compilation serves them all.
-        self._track = frame.lower(self.localizer.views[0], touch, pose, pose).compile()
+        frame = jax.jit(lambda stack, m, *args: _track_frame(stack.view(m), *args, tracking=tracking, settings=icp))
+        # On the map's window of the localizer's stack: one compilation serves every map.
+        self._track = frame.lower(self.localizer.stack, np.int32(0), touch, pose, pose).compile()
         self.compile_s = self.localizer.compile_s + time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self.relocalizations = 0
@@ -285,7 +284,7 @@ class Tracker:
         T_before = self._before if self._before is not None else T_previous
         touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
         tracked, matched, informative = jax.device_get(self._track(
-            self.localizer.views[chosen], touch, jaxlie.SE3(T_previous), jaxlie.SE3(T_before)))
+            self.localizer.stack, np.int32(chosen), touch, jaxlie.SE3(T_previous), jaxlie.SE3(T_before)))
         lost = informative & ((self._unsupported >= self.tracking.max_unsupported_frames)
                               | (matched & (tracked.score > self.tracking.max_residual_mm)))
         self._unsupported = 0 if matched else self._unsupported + int(informative)
@@ -318,8 +317,8 @@ class Tracker:
         new = self.object_ids.index(estimate.object_id)
         T_belief = np.asarray(estimate.T_object_sensor.wxyz_xyz, np.float32)
         touch = Touch(heightmap=frame.heightmap, mask=frame.mask, feature=_NO_FEATURE, opening=_NO_OPENING)
-        fit, fit_matched, _ = jax.device_get(self._track(self.localizer.views[new], touch,
-                                                              jaxlie.SE3(T_belief), jaxlie.SE3(T_belief)))
+        fit, fit_matched, _ = jax.device_get(self._track(self.localizer.stack, np.int32(new), touch,
+                                                         jaxlie.SE3(T_belief), jaxlie.SE3(T_belief)))
         better = not matched or float(selection_cost(fit)) + self.tracking.degraded_mm < float(selection_cost(tracked))
         if not (fit_matched and better):
             return None

@@ -16,6 +16,7 @@ from tactojax.localize._active import should_stop as should_stop
 from tactojax.localize._predict_touch import MarchingGrid as MarchingGrid
 from tactojax.localize._predict_touch import PredictedGrasp as PredictedGrasp
 from tactojax.localize._predict_touch import PredictionSettings as PredictionSettings
+from tactojax.localize._predict_touch import StackedMarchingGrids as StackedMarchingGrids
 from tactojax.localize._predict_touch import map_marching_grid as map_marching_grid
 from tactojax.localize._predict_touch import predict_grasp as predict_grasp
 
@@ -25,6 +26,7 @@ __all__ = [
     "MarchingGrid",
     "PredictedGrasp",
     "PredictionSettings",
+    "StackedMarchingGrids",
     "map_marching_grid",
     "next_grasp",
     "observe_failed_grasp",

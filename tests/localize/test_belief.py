@@ -9,7 +9,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize import BeliefCalibration, LocalizationMap, empty_belief, shared_shapes
+from tactojax.localize import BeliefCalibration, LocalizationMap, StackedMaps, empty_belief
 from tactojax.localize._belief import calibrated_log_likelihood, touch_terms
 from tactojax.localize._likelihood import LikelihoodSettings, point_log_likelihoods
 from tactojax.localize._localize import jitted_update as update
@@ -164,32 +164,53 @@ def test_one_touch_off_the_grid_is_found(bumps_view, synthetic, belief_settings)
     assert int(belief.touches) == 1 and np.isfinite(float(belief.log_evidence))
 
 
-def test_maps_padded_to_one_shape_localize_as_before(bumps_view, ridges_view, synthetic, belief_settings):
-    """shared_shapes pads a map (imprints, surface grid, symmetry copies) to a larger map's shape;
-    the belief then compiles once for both, and the padding changes nothing it finds."""
+def test_stacked_maps_localize_every_map_as_the_map_itself(bumps_view, ridges_view, synthetic, belief_settings):
+    """StackedMaps concatenates maps of different sizes (imprints, surface grid, symmetry copies)
+    without padding each: one compiled update takes (stack, index) for every map, and finds
+    what the map alone finds; StackedMaps.map gives each map back as it was given."""
     larger = ridges_view.padded_to(len(ridges_view) + 7)
     turn = jaxlie.SE3.from_rotation(jaxlie.SO3.from_z_radians(jnp.pi)).wxyz_xyz[None]
     wider = MapSurface.from_dense(np.pad(np.asarray(larger.surface.distance), 5, constant_values=np.nan),
-                                  larger.surface.origin, larger.surface.pitch_mm)
+                                  larger.surface.origin - 5 * larger.surface.pitch_mm, larger.surface.pitch_mm)
     larger = larger.replace(surface=wider,
                             symmetries=jaxlie.SE3(jnp.concatenate([larger.symmetries.wxyz_xyz, turn])))
-    padded, other = shared_shapes([bumps_view, larger])
-    assert padded.surface.shape == other.surface.shape == larger.surface.shape
-    assert padded.surface.blocks.shape == other.surface.blocks.shape
-    assert len(padded) == len(other) == len(larger) and padded.symmetries.wxyz_xyz.shape == (2, 7)
-    assert not padded.symmetric and other.symmetric  # identity copies of the padding do not count
-    touches = [synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y)) for x, y in ((1.5, -1.0), (-2.0, 2.5))]
-    beliefs = []
-    for view in (bumps_view, padded):
-        belief = empty_belief(view, belief_settings)
-        for t, (x, y) in zip(touches, ((1.5, -1.0), (-2.0, 2.5))):
-            belief = update(view, belief, t, synthetic.sensor_pose(x, y), belief_settings)
-        beliefs.append(belief)
-    original, padded_belief = beliefs
-    np.testing.assert_allclose(padded_belief.best.wxyz_xyz, original.best.wxyz_xyz, atol=1e-4)
-    assert float(padded_belief.probability_within()) == pytest.approx(float(original.probability_within()), abs=1e-4)
+    stack = StackedMaps.from_maps([bumps_view, larger, bumps_view])  # the largest map not last
+    assert stack.window_size == len(larger) and len(stack) == 3
+    # Memory: the maps' own imprints and surface blocks, no padding.
+    assert stack.imprints.openings.shape[0] == 2 * len(bumps_view) + len(larger)
+    assert stack.blocks.shape[0] == 2 * bumps_view.surface.blocks.shape[0] + larger.surface.blocks.shape[0] - 2
+    for original, index in ((bumps_view, 0), (larger, 1), (bumps_view, 2)):
+        given = stack.map(index)
+        for name in ("packed_heightmaps", "features", "points", "points_valid", "imprint_valid", "centres"):
+            np.testing.assert_array_equal(getattr(given, name), getattr(original, name), err_msg=name)
+        np.testing.assert_array_equal(given.surface.distance, original.surface.distance)
+        assert given.symmetric == original.symmetric
+        view = stack.view(index)
+        assert len(view) == stack.window_size and int(jnp.sum(view.imprint_valid)) == int(jnp.sum(original.imprint_valid))
+        # The surface read through the stack's flat index equals the map's own, known or not.
+        points = jnp.asarray(np.random.default_rng(index).uniform(-12, 12, (500, 3)) * [1, 1, 0.3], jnp.float32)
+        for interpolate in (True, False):
+            for got, want in zip(view.surface.signed_distance(points, interpolate=interpolate),
+                                 original.surface.signed_distance(points, interpolate=interpolate)):
+                np.testing.assert_array_equal(got, want)
+    assert not stack.map(0).symmetric and stack.map(1).symmetric and not stack.map(2).symmetric
+    places = ((1.5, -1.0), (-2.0, 2.5))
+    touches = [synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y)) for x, y in places]
+    program = jax.jit(lambda stack, index, belief, touch, pose: update(stack.view(index), belief, touch, pose,
+                                                                         belief_settings))
+    alone = empty_belief(bumps_view, belief_settings)
+    for t, (x, y) in zip(touches, places):
+        alone = update(bumps_view, alone, t, synthetic.sensor_pose(x, y), belief_settings)
+    for index in (0, 2):  # before the largest map and after it
+        belief = empty_belief(stack.view(index), belief_settings)
+        for t, (x, y) in zip(touches, places):
+            belief = program(stack, index, belief, t, synthetic.sensor_pose(x, y))
+        np.testing.assert_allclose(belief.best.wxyz_xyz, alone.best.wxyz_xyz, atol=1e-4)
+        assert float(belief.probability_within()) == pytest.approx(float(alone.probability_within()), abs=1e-4)
+    program(stack, 1, empty_belief(stack.view(1), belief_settings), touches[0], synthetic.sensor_pose(*places[0]))
+    assert program._cache_size() == 1  # one program for every map
     with pytest.raises(ValueError, match="mm_per_px"):
-        shared_shapes([bumps_view, bumps_view.replace(mm_per_px=bumps_view.mm_per_px * 2)])
+        StackedMaps.from_maps([bumps_view, bumps_view.replace(mm_per_px=bumps_view.mm_per_px * 2)])
 
 
 def test_two_touches_fuse_as_brute_force_enumeration(bumps_view, synthetic, belief_settings):

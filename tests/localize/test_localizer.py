@@ -82,7 +82,7 @@ def test_grasps_fuse_resets_and_no_contact_never_recompile(live, lookup_model, g
         assert touches[g][1] == min(g + 1, localizer.settings.max_touches) and 1 <= touches[g][0] <= touches[g][1]
     assert after_reset == (0, [0, 0])
     assert fused.updated and fused.grasps == 1 and not any(e.updated for e in again)
-    errors = [_symmetric_error(localizer.views[1], maps[1], index, estimates[settle - 1].T_object_sensor, T_true)
+    errors = [_symmetric_error(localizer.stack.map(1), maps[1], index, estimates[settle - 1].T_object_sensor, T_true)
               for index, estimates, (_, _, _, T_true) in zip(indices, settled, grasps)]
     assert max(errors) < 2.0, errors
 
@@ -109,11 +109,13 @@ def test_a_settled_grasp_updates_the_belief_once_as_localize_does(live, lookup_m
     mask = observed_contact(pixels, lookup_model.background, mask, lookup_model.mm_per_px)
     touch = Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=jnp.float32(opening))
     T_world_sensor = sensor_pose(T_world_gripper, jnp.float32(opening))
-    view = localizer.views[1]
+    # The map on its own, padded to the stack's window (a map of fewer imprints than the belief's
+    # sources retrieves from the padding too: 16 imprints here).
+    view = localizer.stack.map(1).padded_to(localizer.stack.window_size)
     reference = localize(view, touch, T_world_sensor, settings=localizer.settings)
     belief = localizer.beliefs[1]
-    # Two compilations of one update on one (padded) view: float32 rounding, which ICP's iterations
-    # amplify to a few micrometres on the least likely (poorly constrained) hypotheses.
+    # Two compilations of one update: float32 rounding, which ICP's iterations amplify to a few
+    # micrometres on the least likely (poorly constrained) hypotheses.
     np.testing.assert_allclose(np.asarray(belief.log_weights), np.asarray(reference.log_weights), atol=2e-3)
     np.testing.assert_allclose(np.asarray(belief.T_object_reference.wxyz_xyz),
                                np.asarray(reference.T_object_reference.wxyz_xyz), atol=5e-3)
@@ -206,7 +208,8 @@ def test_a_failed_grasp_reweighs_every_maps_belief_in_play(live, grasp_frames):
     before, in_play = list(localizer.beliefs), localizer.in_play.copy()
     localizer.observe_failed_grasp(T_world_gripper, settings)  # the same grasp again, as if it had failed
     assert localizer.grasps == 1 and in_play[localizer.object_ids.index(maps[1].object_id)]
-    for view, prior, posterior, played in zip(localizer.views, before, localizer.beliefs, in_play):
+    for m, (prior, posterior, played) in enumerate(zip(before, localizer.beliefs, in_play)):
+        view = localizer.stack.map(m)  # the map on its own, not its window of the stack
         expected = observe_failed_grasp(view, map_marching_grid(view), prior, T_world_gripper, settings)
         expected = expected if played else prior  # a map out of play is not updated
         np.testing.assert_allclose(np.asarray(posterior.log_weights), np.asarray(expected.log_weights), atol=1e-5)
@@ -289,7 +292,7 @@ def test_tracker_starts_from_the_belief_of_a_settled_grasp_then_follows(tracker,
     belief_pose = belief.sensor_pose(sensor_pose(T_world_gripper, jnp.float32(opening)))
     np.testing.assert_allclose(np.asarray(first.T_object_sensor.wxyz_xyz), np.asarray(belief_pose.wxyz_xyz), atol=2e-3)
     error = pose_errors(maps[1].points[index], maps[1].valid[index], T_true, followed[-1].T_object_sensor,
-                        localizer.views[1].symmetries)["symmetric_rmse"]
+                        localizer.stack.map(1).symmetries)["symmetric_rmse"]
     assert float(error) < 1.0
     for estimate in followed:
         assert estimate.tracked and estimate.object_id == first.object_id and not estimate.updated

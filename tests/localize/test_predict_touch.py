@@ -5,7 +5,9 @@ import jaxlie
 import numpy as np
 import pytest
 
-from tactojax.localize.active import PredictionSettings, map_marching_grid, predict_grasp
+from tactojax.localize._predict_touch import _read
+from tactojax.localize.active import (MarchingGrid, PredictionSettings, StackedMarchingGrids, map_marching_grid,
+                                     predict_grasp)
 from tactojax.objects import get_object
 from tactojax.simulate import GraspsProtocol, simulate_two_sensor_grasps
 from tactojax.simulate._protocols import grasp_candidates
@@ -48,3 +50,30 @@ def test_predicted_touch_matches_the_simulator_at_the_true_pose(small_spec, gum_
                             @ jaxlie.SE3.from_translation(np.array([0.0, 0.0, 3.0], np.float32)),
                             jax.tree.map(lambda x: x[valid[0]], grasps.T_world_gripper), gel, settings)
     assert not np.allclose(np.asarray(shifted.heightmap), np.asarray(predicted.heightmap[valid[0]]))
+
+
+def test_stacked_marching_grids_read_as_each_grid_alone(gum_box_truth_view):
+    """A map's grid within StackedMarchingGrids (flat arrays shared with other maps' grids of
+    other sizes) reads exactly as the grid alone, inside it and outside, and predicts the same touch."""
+    own = map_marching_grid(gum_box_truth_view)
+    small = MarchingGrid(distance=own.distance[:7, :5, :9], known=own.known[:7, :5, :9], origin=own.origin + 1.0,
+                         pitch_mm=own.pitch_mm)
+    grids = [small, own, small]
+    stacked = StackedMarchingGrids.from_grids(grids)
+    extent = np.asarray(own.origin) + np.array(own.distance.shape) * own.pitch_mm
+    points = np.random.default_rng(0).uniform(np.asarray(own.origin) - 5.0, extent + 5.0, (2000, 3)).astype(np.float32)
+    read = jax.jit(lambda stacked, m, p: _read(stacked.grid(m), p))
+    for m, grid in enumerate(grids):
+        for got, want in zip(read(stacked, m, points), _read(grid, points)):
+            np.testing.assert_array_equal(got, want)
+    assert read._cache_size() == 1  # one program for every grid
+    gel = (40.0, 30.0)
+    T_world_object = jaxlie.SE3.identity()
+    centre = np.asarray(own.origin) + 0.5 * (extent - np.asarray(own.origin))
+    T_world_gripper = jaxlie.SE3.from_rotation_and_translation(
+        jaxlie.SO3.from_matrix(np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]], np.float32)), centre.astype(np.float32))
+    alone = predict_grasp(own, gum_box_truth_view.surface, T_world_object, T_world_gripper, gel, PredictionSettings())
+    within = predict_grasp(stacked.grid(1), gum_box_truth_view.surface, T_world_object, T_world_gripper, gel,
+                           PredictionSettings())
+    np.testing.assert_array_equal(np.asarray(within.heightmap), np.asarray(alone.heightmap))
+    assert bool(within.valid) == bool(alone.valid)
