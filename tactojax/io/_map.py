@@ -188,6 +188,8 @@ def _settings_json(settings: SurfaceSettings) -> dict[str, float]:
 def _surface_entry(surface: MapSurface, settings: SurfaceSettings) -> tuple[dict, dict[str, np.ndarray]]:
     """The header entry and arrays that store a map's surface, built with ``settings`` (see the
     module docstring)."""
+    if surface.grid is not None:
+        raise ValueError("a surface within a StackedMaps is not a map's own: store StackedMaps.map(m)'s")
     entry = {"origin_mm": np.asarray(surface.origin, np.float64).tolist(), "settings": _settings_json(settings)}
     return entry, {"surface_blocks": np.asarray(surface.blocks, np.float32),
                    "surface_block_index": np.asarray(surface.block_index, np.int32)}

@@ -48,12 +48,12 @@ class MarchingGrid:
     """Object-frame position of cell (0, 0, 0), mm."""
     pitch_mm: float = struct.field(pytree_node=False)
     """Grid step, mm."""
-    shape: Int[Array, "3"] | None = None
-    """Cells along each axis when they are data: the grid is then the ``shape`` cells of the flat
-    ``distance`` and ``known`` from ``offset`` on (one map's grid among a catalog's,
+    cells: Int[Array, "3"] | None = None
+    """Cells along each axis when they are data: the grid is then the ``prod(cells)`` values of
+    the flat ``distance`` and ``known`` from ``offset`` on (one map's grid among a catalog's,
     :class:`StackedMarchingGrids`; None: the arrays are the grid itself)."""
     offset: Int[Array, ""] | None = None
-    """Where the grid starts in the flat arrays (with ``shape``)."""
+    """Where the grid starts in the flat arrays (with ``cells``)."""
 
 
 @struct.dataclass
@@ -70,7 +70,7 @@ class StackedMarchingGrids:
     """Every grid's :attr:`MarchingGrid.known`, flat."""
     offsets: Int[Array, "M"]
     """Where each grid starts."""
-    shapes: Int[Array, "M 3"]
+    cells: Int[Array, "M 3"]
     """Cells along each axis of each grid."""
     origins: Float[Array, "M 3"]
     """Object-frame position of each grid's cell (0, 0, 0), mm."""
@@ -81,21 +81,23 @@ class StackedMarchingGrids:
     def from_grids(grids) -> StackedMarchingGrids:
         """The grids (host; all of one pitch) in one structure."""
         grids = list(grids)
-        if len({g.pitch_mm for g in grids}) != 1 or any(g.shape is not None for g in grids):
+        if len({g.pitch_mm for g in grids}) != 1 or any(g.cells is not None for g in grids):
             raise ValueError("stacked marching grids need grids of their own, all of one pitch")
         sizes = np.array([np.size(g.distance) for g in grids])
+        if sizes.sum() >= 2**31:  # read through int32 indices
+            raise ValueError(f"the marching grids hold {sizes.sum():,} cells: more than one stack can index (2**31)")
         return StackedMarchingGrids(
             distance=jnp.asarray(np.concatenate([np.asarray(g.distance, np.float32).ravel() for g in grids])),
             known=jnp.asarray(np.concatenate([np.asarray(g.known).ravel() for g in grids])),
             offsets=jnp.asarray(np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)),
-            shapes=jnp.asarray(np.array([np.shape(g.distance) for g in grids], np.int32)),
+            cells=jnp.asarray(np.array([np.shape(g.distance) for g in grids], np.int32)),
             origins=jnp.asarray(np.stack([np.asarray(g.origin, np.float32) for g in grids])),
             pitch_mm=grids[0].pitch_mm)
 
     def grid(self, index: int | Int[Array, ""]) -> MarchingGrid:
         """Map ``index``'s grid (jit-compatible; ``index`` may be traced)."""
         return MarchingGrid(distance=self.distance, known=self.known, origin=self.origins[index],
-                            pitch_mm=self.pitch_mm, shape=self.shapes[index], offset=self.offsets[index])
+                            pitch_mm=self.pitch_mm, cells=self.cells[index], offset=self.offsets[index])
 
 
 def map_marching_grid(view, *, min_points: int = 4) -> MarchingGrid:
@@ -117,19 +119,22 @@ def marching_grid(surface: MapSurface, points: Float[Array, "N 3"] | None = None
             within ``radius_mm`` (stray points, e.g. at the rims of a face, then stop no ray).
         radius_mm: the neighbourhood of that count, mm.
     """
-    from scipy.ndimage import convolve, distance_transform_edt
+    from scipy.ndimage import distance_transform_edt
+    from scipy.spatial import cKDTree
 
     distance = np.asarray(surface.distance, np.float32)
     known = np.isfinite(distance)
-    if min_points > 0 and points is not None:
+    if min_points > 0 and points is not None and known.any():
+        # The points' cells within a ball of ``steps + 0.5`` cells, counted at the known cells
+        # only (a k-d tree over the points' cells: a tenth of the time of a dense convolution).
         cells = np.round((np.asarray(points, np.float64).reshape(-1, 3) - np.asarray(surface.origin))
                          / surface.pitch_mm).astype(int)
         inside = np.all((cells >= 0) & (cells < np.array(distance.shape)), axis=1)
-        counts = np.zeros(distance.shape, np.float32)
-        np.add.at(counts, tuple(cells[inside].T), 1.0)
         steps = int(np.ceil(radius_mm / surface.pitch_mm))
-        ball = (np.linalg.norm(np.indices((2 * steps + 1,) * 3) - steps, axis=0) <= steps + 0.5).astype(np.float32)
-        known &= convolve(counts, ball, mode="constant") >= min_points
+        where = np.argwhere(known)
+        counts = (cKDTree(cells[inside]).query_ball_point(where, steps + 0.5, return_length=True, workers=-1)
+                  if inside.any() else np.zeros(len(where), int))
+        known[tuple(where[counts < min_points].T)] = False
     if not known.any():
         far = np.full(distance.shape, 1e3, np.float32)
         return MarchingGrid(distance=jnp.asarray(far), known=jnp.asarray(known), origin=surface.origin,
@@ -188,11 +193,11 @@ class PredictedGrasp:
 def _read(grid: MarchingGrid, points: Float[Array, "N 3"]) -> tuple[Float[Array, "N"], Bool[Array, "N"]]:
     """The marching grid's nearest cell at object-frame points: its value (mm; outside the grid,
     the distance to the grid's box) and whether the surface is known there."""
-    if grid.shape is None:  # the grid's own arrays: static
+    if grid.cells is None:  # the grid's own arrays: static
         shape, start = np.array(grid.distance.shape), 0
         strides = np.array([shape[1] * shape[2], shape[2], 1])
     else:  # one grid of a stack's flat arrays: the same arithmetic, traced
-        shape, start = grid.shape, grid.offset
+        shape, start = grid.cells, grid.offset
         strides = jnp.stack([shape[1] * shape[2], shape[2], jnp.ones_like(shape[2])])
     cell = (points - grid.origin) / grid.pitch_mm
     inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)

@@ -93,6 +93,7 @@ class StackedMaps:
             raise ValueError("a map stack needs at least one map")
         for name, value in (("mm_per_px", lambda v: v.mm_per_px), ("surface pitch", lambda v: v.surface.pitch_mm),
                             ("feature size", lambda v: v.features.shape[1]),
+                            ("points per imprint", lambda v: v.points.shape[1]),
                             ("image size", lambda v: v.packed_heightmaps.shape[1:])):
             if len({value(v) for v in maps}) > 1:
                 raise ValueError(f"the maps differ in {name} ({[value(v) for v in maps]}): one stack cannot hold them")
@@ -105,6 +106,9 @@ class StackedMaps:
         offsets = np.zeros(len(maps), np.int32)
         offsets[layout] = np.concatenate([[0], np.cumsum(counts[layout])[:-1]])
         blocks, index, index_offsets, grids = _concatenated_surfaces([v.surface for v in maps])
+        if blocks.size >= 2**31 or index.size >= 2**31:  # read through int32 indices
+            raise ValueError(f"the maps' surfaces hold {blocks.size:,} cells in {index.size:,} grid blocks: more than "
+                             "one stack can index (2**31); split the catalog")
         copies = max(v.symmetries.wxyz_xyz.shape[0] for v in maps)
         identity = np.asarray(jaxlie.SE3.identity().wxyz_xyz)
         symmetries = np.stack([np.concatenate([np.asarray(v.symmetries.wxyz_xyz),
@@ -148,14 +152,26 @@ class StackedMaps:
             calibration=jax.tree.map(lambda x: x[index], self.calibration))
 
     def window(self, index: int) -> LocalizationMap:
-        """:meth:`view` as arrays of their own, from the host (one compiled copy for every map):
-        for programs that take a map, one map at a time."""
-        return _view(self, index)
+        """:meth:`view` from the host, its per-imprint arrays its own (one compiled program for
+        every map) and its surface reading the stack's shared blocks: for programs that take a
+        map, one map at a time.
+
+        Raises:
+            IndexError: ``index`` is not a map of the stack.
+        """
+        view = _view_without_blocks(self, np.int32(self._checked(index)))
+        return view.replace(surface=view.surface.replace(blocks=self.blocks))
 
     def map(self, index: int) -> LocalizationMap:
-        """Map ``index`` as it was given (its own imprints and surface grid; on the host), for
-        host code: figures, the marching grid of active touch, a program compiled for one map."""
-        index = int(index)
+        """Map ``index`` on its own (on the host): its imprints, and its surface on its own grid
+        holding the blocks it reads (trailing identity copies of its symmetries and stored blocks
+        that nothing pointed to, which padding adds, are left out). For host code: figures, the
+        marching grid of active touch, a program compiled for one map.
+
+        Raises:
+            IndexError: ``index`` is not a map of the stack.
+        """
+        index = self._checked(index)
         start, count = int(self.offsets[index]), int(self.counts[index])
         own = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[start:start + count]), self.imprints)
         grid = tuple(int(n) for n in np.asarray(self.grids[index]))
@@ -172,6 +188,13 @@ class StackedMaps:
                            symmetry_axis=self.symmetry_axis[index], symmetry_centre=self.symmetry_centre[index],
                            calibration=jax.tree.map(lambda x: x[index], self.calibration))
 
+    def _checked(self, index) -> int:
+        """``index`` as a host int, refused outside the stack (inside jit an index out of range
+        would read another map: JAX clamps gathers)."""
+        if not 0 <= int(index) < len(self):
+            raise IndexError(f"map {int(index)} of a stack of {len(self)} maps")
+        return int(index)
+
     def with_calibration(self, calibration: BeliefCalibration) -> StackedMaps:
         """The same stack with one calibration for every map (beliefs that compare: P(object))."""
         return self.replace(calibration=jax.tree.map(
@@ -183,7 +206,9 @@ class StackedMaps:
         return int(sum(leaf.nbytes for leaf in jax.tree.leaves(self)))
 
 
-_view = jax.jit(StackedMaps.view)
+_view_without_blocks = jax.jit(lambda stack, index: (lambda view: view.replace(
+    surface=view.surface.replace(blocks=None)))(stack.view(index)))
+"""A map's view without its surface's blocks (the stack's own are attached after: not copied)."""
 
 
 def _imprint_fields(view: LocalizationMap) -> LocalizationMap:

@@ -82,7 +82,7 @@ class MapSurface:
     grid: Int[Array, "3"] | None = None
     """Blocks along each axis when they are data, not ``block_index``'s shape: a map's surface
     within a :class:`~tactojax.localize.StackedMaps`, whose maps share one ``blocks`` array and
-    one flat index (read inside jit only; None for a map's own surface)."""
+    one flat index (only :meth:`signed_distance` reads such a surface; None for a map's own)."""
 
     @staticmethod
     def from_dense(distance: Float[Array, "X Y Z"], origin: Float[Array, "3"], pitch_mm: float) -> MapSurface:
@@ -121,6 +121,8 @@ class MapSurface:
         """The surface on a grid of ``blocks_shape`` blocks (extended on its far sides with
         unknown ones) holding ``count`` blocks (unknown ones added): maps padded to one shape
         compile once."""
+        if self.grid is not None:
+            raise ValueError("a surface within a StackedMaps cannot be padded: StackedMaps.map gives the map's own")
         # On the host: no program per map size.
         index = np.pad(np.asarray(self.block_index), [(0, n - m) for n, m in zip(blocks_shape, self.block_index.shape)])
         blocks = np.asarray(self.blocks)

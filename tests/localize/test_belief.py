@@ -209,6 +209,11 @@ def test_stacked_maps_localize_every_map_as_the_map_itself(bumps_view, ridges_vi
         assert float(belief.probability_within()) == pytest.approx(float(alone.probability_within()), abs=1e-4)
     program(stack, 1, empty_belief(stack.view(1), belief_settings), touches[0], synthetic.sensor_pose(*places[0]))
     assert program._cache_size() == 1  # one program for every map
+    window = stack.window(2)  # from the host: the map's window, reading the stack's blocks (no copy)
+    assert window.surface.blocks is stack.blocks and len(window) == stack.window_size
+    np.testing.assert_array_equal(window.imprint_valid, stack.view(2).imprint_valid)
+    with pytest.raises(IndexError, match="map 3 of a stack of 3"):
+        stack.window(3)
     with pytest.raises(ValueError, match="mm_per_px"):
         StackedMaps.from_maps([bumps_view, bumps_view.replace(mm_per_px=bumps_view.mm_per_px * 2)])
 
