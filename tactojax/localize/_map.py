@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -181,8 +180,8 @@ class LocalizationMap:
     @property
     def symmetric(self) -> bool:
         """Whether the object has a symmetry beyond the identity: a continuous axis, or a copy
-        that is not the identity (the identity copies :class:`~tactojax.localize.StackedMaps` pads with do not
-        count). Host-side (reads the arrays)."""
+        that is not the identity (the identity copies :class:`~tactojax.localize.StackedMaps`
+        pads with do not count). Host-side (reads the arrays)."""
         copies = np.asarray(self.symmetries.wxyz_xyz)
         identity = np.asarray(jaxlie.SE3.identity().wxyz_xyz)
         return bool(np.any(np.asarray(self.symmetry_axis) != 0) or np.any(np.abs(copies[1:] - identity) > 1e-6))

@@ -31,7 +31,7 @@ from tactojax import _struct as struct
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.localize._correspondences import matvec
 from tactojax.localize._points import TouchEvidence, draw_pixels, pixel_priority
-from tactojax.localize._surface import MapSurface
+from tactojax.localize._surface import MapSurface, row_major_strides
 
 
 @struct.dataclass
@@ -193,12 +193,9 @@ class PredictedGrasp:
 def _read(grid: MarchingGrid, points: Float[Array, "N 3"]) -> tuple[Float[Array, "N"], Bool[Array, "N"]]:
     """The marching grid's nearest cell at object-frame points: its value (mm; outside the grid,
     the distance to the grid's box) and whether the surface is known there."""
-    if grid.cells is None:  # the grid's own arrays: static
-        shape, start = np.array(grid.distance.shape), 0
-        strides = np.array([shape[1] * shape[2], shape[2], 1])
-    else:  # one grid of a stack's flat arrays: the same arithmetic, traced
-        shape, start = grid.cells, grid.offset
-        strides = jnp.stack([shape[1] * shape[2], shape[2], jnp.ones_like(shape[2])])
+    # The grid's own arrays: static; one grid of a stack's flat arrays: the same arithmetic, traced.
+    shape, start = (np.array(grid.distance.shape), 0) if grid.cells is None else (grid.cells, grid.offset)
+    strides = row_major_strides(shape)
     cell = (points - grid.origin) / grid.pitch_mm
     inside = jnp.all((cell >= 0) & (cell <= shape - 1), axis=-1)
     index = start + jnp.clip(jnp.round(cell), 0, shape - 1).astype(jnp.int32) @ strides

@@ -100,11 +100,9 @@ class StackedMaps:
         counts = np.array([len(v) for v in maps], np.int32)
         window = int(counts.max())
         # Laid out with the largest map last: every map's window then lies within the arrays, no padding.
-        layout = _largest_last(counts)
+        layout, offsets = _largest_last(counts)
         rows = [_imprint_fields(maps[m]) for m in layout]
         imprints = jax.tree.map(lambda *x: jnp.asarray(np.concatenate([np.asarray(a) for a in x])), *rows)
-        offsets = np.zeros(len(maps), np.int32)
-        offsets[layout] = np.concatenate([[0], np.cumsum(counts[layout])[:-1]])
         blocks, index, index_offsets, grids = _concatenated_surfaces([v.surface for v in maps])
         if blocks.size >= 2**31 or index.size >= 2**31:  # read through int32 indices
             raise ValueError(f"the maps' surfaces hold {blocks.size:,} cells in {index.size:,} grid blocks: more than "
@@ -206,9 +204,12 @@ class StackedMaps:
         return int(sum(leaf.nbytes for leaf in jax.tree.leaves(self)))
 
 
-_view_without_blocks = jax.jit(lambda stack, index: (lambda view: view.replace(
-    surface=view.surface.replace(blocks=None)))(stack.view(index)))
-"""A map's view without its surface's blocks (the stack's own are attached after: not copied)."""
+@jax.jit
+def _view_without_blocks(stack: StackedMaps, index: Int[Array, ""]) -> LocalizationMap:
+    """A map's view without its surface's blocks (:meth:`StackedMaps.window` attaches the stack's
+    own after: a program's outputs are new arrays, and the blocks are the stack's largest)."""
+    view = stack.view(index)
+    return view.replace(surface=view.surface.replace(blocks=None))
 
 
 def _imprint_fields(view: LocalizationMap) -> LocalizationMap:
@@ -217,11 +218,15 @@ def _imprint_fields(view: LocalizationMap) -> LocalizationMap:
                         **{name: None for name in _PER_MAP})
 
 
-def _largest_last(sizes: np.ndarray) -> np.ndarray:
-    """The order to lay out items of ``sizes``: as given, but the largest last (a window of the
-    largest size from any item's start then ends within the items)."""
+def _largest_last(sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How to lay out items of ``sizes`` one after the other: the order (as given, but the
+    largest last: a window of the largest size from any item's start then ends within the
+    items), and each item's start (int32, in the given order)."""
     largest = int(np.argmax(sizes))
-    return np.array([i for i in range(len(sizes)) if i != largest] + [largest])
+    order = np.array([i for i in range(len(sizes)) if i != largest] + [largest])
+    starts = np.zeros(len(sizes), np.int32)
+    starts[order] = np.concatenate([[0], np.cumsum(np.asarray(sizes)[order])[:-1]])
+    return order, starts
 
 
 def _concatenated_surfaces(surfaces: Sequence[MapSurface]):
@@ -232,14 +237,11 @@ def _concatenated_surfaces(surfaces: Sequence[MapSurface]):
     if any(surface.grid is not None for surface in surfaces):
         raise ValueError("a stack's maps must hold their own surfaces (StackedMaps.map gives them)")
     grids = np.array([surface.block_index.shape for surface in surfaces], np.int32)
-    blocks, index = [np.asarray(surfaces[0].blocks)[:1]], []
-    starts = np.zeros(len(surfaces), np.int32)
-    stored, position = 1, 0
-    for m in _largest_last(np.prod(grids, axis=1)):
+    order, starts = _largest_last(np.prod(grids, axis=1))
+    blocks, index, stored = [np.asarray(surfaces[0].blocks)[:1]], [], 1
+    for m in order:
         own, grid = np.asarray(surfaces[m].blocks), np.asarray(surfaces[m].block_index)
         blocks.append(own[1:])
         index.append(np.where(grid > 0, grid - 1 + stored, 0).astype(np.int32).ravel())
-        starts[m] = position
         stored += own.shape[0] - 1
-        position += grid.size
     return np.concatenate(blocks), np.concatenate(index), starts, grids

@@ -27,6 +27,14 @@ from tactojax import _struct as struct
 from tactojax.mapping import TactileMap
 
 
+def row_major_strides(shape):
+    """(3,) int32 steps along each axis of a row-major 3-D grid of ``shape`` (a NumPy shape:
+    NumPy strides; a traced one, a grid's dimensions as data: traced strides)."""
+    if isinstance(shape, np.ndarray):
+        return np.array([shape[1] * shape[2], shape[2], 1], np.int32)
+    return jnp.stack([shape[1] * shape[2], shape[2], jnp.ones_like(shape[2])]).astype(jnp.int32)
+
+
 @dataclass(frozen=True)
 class SurfaceSettings:
     """How the surface grid is built (static)."""
@@ -140,9 +148,7 @@ class MapSurface:
         """
         # Static for a map's own surface; data within a stack (the same arithmetic, traced).
         grid = np.array(self.block_index.shape) if self.grid is None else self.grid
-        shape = grid * BLOCK
-        strides = (np.array([grid[1] * grid[2], grid[2], 1], np.int32) if self.grid is None
-                   else jnp.stack([grid[1] * grid[2], grid[2], jnp.ones_like(grid[2])]).astype(jnp.int32))
+        shape, strides = grid * BLOCK, row_major_strides(grid)
         side = BLOCK + 1
         in_block = np.array([side * side, side, 1], np.int32)  # a cell's step along each axis of a stored block
         cell = (p_object - self.origin) / self.pitch_mm
