@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -50,6 +52,8 @@ from tactojax.localize._likelihood import LikelihoodSettings, align_depth, log_l
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
 from tactojax.localize._points import TouchEvidence, touch_evidence
 from tactojax.localize._retrieval import rank_imprints
+
+Tree = TypeVar("Tree")
 
 WITHIN_MM = 2.0
 """The error a belief's confidence is about: P(the best pose is within this), mm."""
@@ -365,11 +369,20 @@ def touch_terms(view: LocalizationMap, evidence: TouchEvidence, feature: Float[A
 def belief_terms(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
                  settings: BeliefSettings) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """:func:`touch_terms` summed over the touches a belief holds, at one hypothesis."""
-    T_touches = T_object_reference @ belief.T_reference_touch
-    geometry, similarity = jax.vmap(lambda e, f, T: touch_terms(view, e, f, T, settings))(
-        belief.evidence, belief.features, T_touches)
-    return (jnp.sum(jnp.where(belief.touch_valid, geometry, 0.0)),
-            jnp.sum(jnp.where(belief.touch_valid, similarity, 0.0)))
+    return sum_over_touches(belief, lambda t: touch_terms(
+        view, take(belief.evidence, t), belief.features[t], T_object_reference @ take(belief.T_reference_touch, t),
+        settings))
+
+
+def sum_over_touches(belief: PoseBelief, term: Callable[[Int[Array, ""]], Tree]) -> Tree:
+    """``term(t)`` (a pytree of arrays) summed over the touches ``t`` the belief holds.
+
+    A belief's touches fill its first slots (:func:`remember`), so the sum runs over them alone,
+    in a loop: an update costs what the touches it holds cost, not what ``max_touches`` slots
+    would (vmapped over beliefs, the loop runs to the batch's most touches). Slot 0, the
+    reference, counts only when it holds a touch."""
+    first = jax.tree.map(lambda x: jnp.where(belief.touch_valid[0], x, jnp.zeros_like(x)), term(jnp.int32(0)))
+    return jax.lax.fori_loop(1, belief.touches, lambda t, total: jax.tree.map(jnp.add, total, term(t)), first)
 
 
 def calibrated_log_likelihood(calibration: BeliefCalibration, geometry: Float[Array, "*M"],
@@ -397,7 +410,8 @@ def candidates(view: LocalizationMap, belief: PoseBelief, evidence: TouchEvidenc
     (``belief`` already remembers the new one): what the other touches say is the strongest
     evidence a candidate can get (on a long cylinder, a single touch fits hundreds of them
     equally). Coarse to fine: all candidates are first screened with a few points of each
-    touch (``screen_points``, one depth alignment step of the new touch); the ``screened``
+    touch (``screen_points``, one depth alignment step of the new touch, the surface read at
+    its nearest cells as the coarse likelihood reads it); the ``screened``
     best are then aligned with all the new touch's points, from their original offsets, and
     scored with all points of every touch.
     """
@@ -411,12 +425,12 @@ def candidates(view: LocalizationMap, belief: PoseBelief, evidence: TouchEvidenc
     surface = view.surface
 
     def joint(T_object_reference, evidence_):
-        per_touch = jax.vmap(lambda e, T_touch: log_likelihood(surface, T_object_reference @ T_touch, e,
-                                                               settings.coarse))(evidence_, belief.T_reference_touch)
-        return jnp.sum(jnp.where(belief.touch_valid, per_touch, 0.0))
+        return sum_over_touches(belief, lambda t: log_likelihood(
+            surface, T_object_reference @ take(belief.T_reference_touch, t), take(evidence_, t), settings.coarse))
 
     def screen(source, T_source_sensor):
-        T = align_depth(surface, take(view.T_object_sensor, source) @ T_source_sensor, few, iterations=1)
+        T = align_depth(surface, take(view.T_object_sensor, source) @ T_source_sensor, few, iterations=1,
+                        interpolate=settings.coarse.interpolate)
         return joint(T @ T_reference_touch.inverse(), few_of_every_touch)
 
     screening = jax.vmap(lambda source: jax.vmap(lambda T: screen(source, T))(offsets))(sources)  # (sources, S)
@@ -462,8 +476,9 @@ def refine(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie
     candidates_valid = jnp.repeat(nearby_valid & belief.touch_valid[:, None], used, axis=0)
     points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact[:, :used])
     points_valid = belief.evidence.contact_valid[:, :used] & belief.touch_valid[:, None]
+    # Each touch's points a block: the empty slots are never looked up.
     estimate = icp(view, candidates_, candidates_valid, points.reshape(-1, 3), points_valid.reshape(-1),
-                   T_object_reference, settings.icp)
+                   T_object_reference, settings.icp, blocks=belief.touch_valid.shape[0], active_blocks=belief.touches)
     return estimate.T_object_sensor
 
 

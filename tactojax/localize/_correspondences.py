@@ -165,6 +165,8 @@ def find_correspondences(
     *,
     T_sensor_candidate: jaxlie.SE3 | None = None,
     surfaces: Float16[Array, "N H W"] | None = None,
+    blocks: int = 1,
+    active_blocks: Int[Array, ""] | None = None,
 ) -> Correspondences:
     """Match every point to the candidate imprint whose surface is nearest (point-to-plane).
 
@@ -185,6 +187,10 @@ def find_correspondences(
         surfaces: :func:`candidate_surfaces` of (N,) shared candidates, if already computed
             (cheaper lookups; without them the points are looked up in the map's own
             heightmaps).
+        blocks, active_blocks: the points come in ``blocks`` equal blocks (static; e.g. the
+            touches a belief holds), of which only the first ``active_blocks`` (traced) can hold
+            valid points: only those are looked up, the others left unmatched (per-point
+            candidates only; None: every block).
 
     Returns:
         :class:`Correspondences` of the P points (``candidate`` indexes the point's N candidates).
@@ -194,6 +200,25 @@ def find_correspondences(
         T_sensor_candidate = candidate_poses(view, candidates)
     if surfaces is not None and per_point:
         raise ValueError("surfaces are for candidates shared by all points, not per-point candidates")
+    if active_blocks is not None:
+        if not per_point or points_object.shape[0] % blocks:
+            raise ValueError(f"blocks need per-point candidates and {points_object.shape[0]} points in {blocks} "
+                             "equal blocks")
+        size = points_object.shape[0] // blocks
+
+        def block(b, found):
+            part = lambda x: jax.lax.dynamic_slice_in_dim(x, b * size, size)  # noqa: E731
+            matches = find_correspondences(view, part(candidates), part(candidate_valid), part(points_object),
+                                           part(points_valid), max_distance_mm,
+                                           T_sensor_candidate=jax.tree.map(part, T_sensor_candidate))
+            return jax.tree.map(lambda whole, new: jax.lax.dynamic_update_slice_in_dim(whole, new, b * size, 0),
+                                found, matches)
+
+        count = points_object.shape[0]
+        unmatched = Correspondences(candidate=jnp.zeros(count, jnp.int32), residual=jnp.zeros(count),
+                                    target=jnp.zeros((count, 3)), normal=jnp.zeros((count, 3)),
+                                    valid=jnp.zeros(count, bool))
+        return jax.lax.fori_loop(0, active_blocks, block, unmatched)
     # (P, N) sensor-frame points: rotate and translate with explicit matrices.
     rotation = T_sensor_candidate.rotation().as_matrix()  # (N, 3, 3) or (P, N, 3, 3)
     translation = T_sensor_candidate.translation()

@@ -140,7 +140,10 @@ def closest_copy_square(
                    for T in (copy, turn @ copy)]
         return jnp.minimum(*squares)
 
-    return jnp.min(jax.vmap(copy_square)(symmetries))
+    # A loop over the copies, not a vmap: vmapped copies nested in two more vmaps (beliefs x
+    # hypotheses, as the new-grasps evaluation runs it) crash XLA's CPU compiler (jaxlib 0.10.2:
+    # a segmentation fault with two or more copies; tests/localize/test_evaluate.py).
+    return jnp.min(jax.lax.map(copy_square, symmetries))
 
 
 def pose_errors(

@@ -139,14 +139,18 @@ def fit_quality(
     points_valid: Bool[Array, "P"],
     T_object_sensor: jaxlie.SE3,
     settings: IcpSettings,
+    *,
+    blocks: int = 1,
+    active_blocks: Int[Array, ""] | None = None,
 ) -> tuple[Float[Array, ""], Float[Array, ""], Int[Array, ""]]:
     """Robust residual RMS (mm), overlap fraction and match count of a pose against candidates.
 
     Always measured with the projective association (the exact stored surfaces), whichever
-    association the ICP used, so that scores compare across settings.
+    association the ICP used, so that scores compare across settings. ``blocks`` and
+    ``active_blocks``: as :func:`find_correspondences`.
     """
     matches = find_correspondences(view, candidates, candidate_valid, transform_points(T_object_sensor, points),
-                                   points_valid, settings.max_distance_mm)
+                                   points_valid, settings.max_distance_mm, blocks=blocks, active_blocks=active_blocks)
     weight = robust_weights(matches.residual, matches.valid, settings)
     score = jnp.sqrt(jnp.sum(weight * matches.residual**2) / jnp.maximum(jnp.sum(weight), 1e-12))
     count = jnp.sum(matches.valid)
@@ -162,6 +166,9 @@ def icp(
     points_valid: Bool[Array, "P"],
     T_start: jaxlie.SE3,
     settings: IcpSettings = IcpSettings(),
+    *,
+    blocks: int = 1,
+    active_blocks: Int[Array, ""] | None = None,
 ) -> PoseEstimate:
     """Register query points to the union of N stored imprints, from a start pose.
 
@@ -175,6 +182,10 @@ def icp(
         points_valid: (P,) which points are real.
         T_start: initial sensor pose in the object frame.
         settings: ICP parameters (static).
+        blocks, active_blocks: the points come in ``blocks`` equal blocks, of which only the
+            first ``active_blocks`` can hold valid points (e.g. the touches a belief holds, each
+            a block): the others are never looked up (:func:`find_correspondences`; per-point
+            candidates and the projective association only).
 
     Returns:
         :class:`PoseEstimate` (``imprint_index`` -1: the caller knows where it started).
@@ -182,6 +193,8 @@ def icp(
     per_point = candidates.ndim == 2
     if per_point and settings.association == "nearest":
         raise ValueError("per-point candidates need the projective association")
+    if active_blocks is not None and settings.association == "nearest":
+        raise ValueError("blocks of points need the projective association")
     T_sensor_candidate = candidate_poses(view, candidates)
     # Shared candidates: their surfaces copied once (one gather a lookup instead of two).
     # Per-point ones are looked up in the map itself (a copy would be P x N heightmaps).
@@ -206,7 +219,7 @@ def icp(
         else:
             matches = find_correspondences(view, candidates, candidate_valid, moved, points_valid,
                                            settings.max_distance_mm, T_sensor_candidate=T_sensor_candidate,
-                                           surfaces=surfaces)
+                                           surfaces=surfaces, blocks=blocks, active_blocks=active_blocks)
         weight = robust_weights(matches.residual, matches.valid, settings)
         enough = jnp.sum(weight > 0) >= settings.min_correspondences
         center = matvec(rotation, centroid_sensor) + translation
@@ -240,7 +253,8 @@ def icp(
     finite = jnp.all(jnp.isfinite(T.wxyz_xyz))
     T = jax.tree.map(lambda a, b: jnp.where(finite, a, b), T, T_start)
     T = jaxlie.SE3(T.wxyz_xyz.at[:4].set(T.wxyz_xyz[:4] / jnp.linalg.norm(T.wxyz_xyz[:4])))
-    score, overlap, matched = fit_quality(view, candidates, candidate_valid, points, points_valid, T, settings)
+    score, overlap, matched = fit_quality(view, candidates, candidate_valid, points, points_valid, T, settings,
+                                          blocks=blocks, active_blocks=active_blocks)
     converged = done & finite & (matched >= settings.min_correspondences)
     return PoseEstimate(T_object_sensor=T, score=score, overlap=overlap, converged=converged,
                         iterations=iterations, imprint_index=jnp.int32(-1))

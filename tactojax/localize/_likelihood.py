@@ -101,6 +101,7 @@ def align_depth(
     *,
     iterations: int = 2,
     max_offset_mm: float = 3.0,
+    interpolate: bool = True,
 ) -> jaxlie.SE3:
     """The pose moved along its gel normal (the sensor's z) so that the touch's contact meets
     the surface.
@@ -110,11 +111,14 @@ def align_depth(
     the mean signed distance of the contact points whose surface is known within
     ``max_offset_mm``; each later one by the mean of those within ``max_offset_mm / 3`` of the
     previous estimate (a trimmed mean: no sort, cheap for thousands of candidates).
+    ``interpolate``: read the surface trilinearly (False: the nearest cell, as screening reads
+    it; the mean offset of many points is then off by a few hundredths of a millimetre).
     """
     def step(carry, width):
         T, previous = carry
         rotation, translation = T.rotation().as_matrix(), T.translation()
-        distance, known = surface.signed_distance(matvec(rotation, evidence.contact) + translation)
+        distance, known = surface.signed_distance(matvec(rotation, evidence.contact) + translation,
+                                                  interpolate=interpolate)
         use = evidence.contact_valid & known & (jnp.abs(distance - previous) <= width)
         offset = jnp.sum(jnp.where(use, distance - previous, 0.0)) / jnp.maximum(jnp.sum(use), 1)
         # Moving the sensor by +offset along its z carries the contact that far into the object.

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tactojax.localize import BeliefCalibration, LocalizationMap, StackedMaps, empty_belief
-from tactojax.localize._belief import calibrated_log_likelihood, touch_terms
+from tactojax.localize._belief import belief_terms, calibrated_log_likelihood, remember, touch_terms
 from tactojax.localize._likelihood import LikelihoodSettings, point_log_likelihoods
 from tactojax.localize._localize import jitted_update as update
 from tactojax.localize._points import TouchEvidence, touch_evidence
@@ -259,6 +259,31 @@ def test_two_touches_fuse_as_brute_force_enumeration(bumps_view, synthetic, beli
     second = belief.sensor_pose(T_world_object @ T_second)  # the second touch, in the object frame
     np.testing.assert_allclose(np.asarray(second.wxyz_xyz), np.asarray(belief.touch_pose(1).wxyz_xyz), atol=1e-4)
     assert np.linalg.norm(np.asarray(second.translation() - T_second.translation())) < 0.5
+
+
+def test_cues_sum_over_the_touches_held_and_never_read_an_empty_slot(bumps_view, synthetic, belief_settings):
+    """A belief of three slots holding two touches: its cues at a hypothesis are the two
+    touches' own, summed (touch by touch here); the empty slot, though it holds a valid-looking
+    touch, is never read (the belief's touches fill its first slots)."""
+    settings = dataclasses.replace(belief_settings, max_touches=3)
+    belief = empty_belief(bumps_view, settings)
+    touches = []
+    for x, y in ((-2.0, 1.0), (3.0, -2.5)):
+        T = synthetic.sensor_pose(x, y)
+        touch = synthetic.touch(synthetic.bumps, T)
+        touches.append((_evidence(touch, bumps_view, settings), touch.feature / jnp.linalg.norm(touch.feature), T))
+        belief = remember(belief, touches[-1][0], touch.feature, touches[0][2].inverse() @ T)
+    assert np.asarray(belief.touch_valid).tolist() == [True, True, False]
+    stray = touches[0][0]  # a whole touch in the empty slot, valid points and all
+    belief = belief.replace(evidence=jax.tree.map(lambda slots, x: slots.at[2].set(x), belief.evidence, stray),
+                            features=belief.features.at[2].set(touches[0][1]))
+    hypothesis = synthetic.sensor_pose(-1.5, 0.5)
+    geometry, similarity = jax.jit(belief_terms, static_argnames=("settings",))(bumps_view, belief, hypothesis,
+                                                                                 settings)
+    terms = [touch_terms(bumps_view, evidence, feature, hypothesis @ touches[0][2].inverse() @ T, settings)
+             for evidence, feature, T in touches]
+    assert float(geometry) == pytest.approx(sum(float(t[0]) for t in terms), rel=1e-4)
+    assert float(similarity) == pytest.approx(sum(float(t[1]) for t in terms), rel=1e-4)
 
 
 def test_symmetric_map_keeps_both_copies_and_counts_them_as_one(synthetic, belief_settings):

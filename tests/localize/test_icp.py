@@ -149,6 +149,26 @@ def test_per_point_candidates_register_as_shared_ones(problem):
     assert float(cloud_rmse(points, valid, T_true, per_point.T_object_sensor)) < 0.05
 
 
+def test_blocks_past_the_active_ones_are_never_read(problem):
+    """Points in blocks (a belief's touches): with only the first blocks active, the fit equals
+    the one where the other blocks' points are masked out; their points, though marked valid
+    (and 0.6 mm off the first block's, so that they would pull the fit), are never matched."""
+    view, T_true, points, valid = problem
+    start = _perturb(T_true, (0.8, -0.5, 0.2), (1.0, -1.0, 2.0))
+    settings = SETTINGS["gauss-newton"]
+    rows = jnp.broadcast_to(CANDIDATES, (2 * points.shape[0], 8))
+    shifted = jnp.concatenate([points, points + jnp.array([0.6, 0.0, 0.0])])
+    masked = _icp(view, rows, jnp.ones(rows.shape, bool), shifted, jnp.concatenate([valid, jnp.zeros_like(valid)]),
+                  start, settings)
+    blocked = jax.jit(icp, static_argnums=6, static_argnames=("blocks",))(
+        view, rows, jnp.ones(rows.shape, bool), shifted, jnp.concatenate([valid, valid]), start, settings, blocks=2,
+        active_blocks=jnp.int32(1))
+    assert float(cloud_rmse(points, valid, masked.T_object_sensor, blocked.T_object_sensor)) < 1e-3
+    np.testing.assert_allclose(float(blocked.score), float(masked.score), atol=1e-5)
+    assert bool(blocked.converged) == bool(masked.converged)
+    assert float(cloud_rmse(points, valid, T_true, blocked.T_object_sensor)) < 0.05
+
+
 @pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
 def test_kth_smallest_equals_the_sort(size):
     from tactojax.localize._icp import kth_smallest

@@ -80,10 +80,10 @@ def test_no_axis_turns_nothing():
     np.testing.assert_allclose(np.asarray(turn.wxyz_xyz), np.asarray(jaxlie.SE3.identity().wxyz_xyz), atol=1e-6)
 
 
-def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belief_settings):
-    """The belief's distances up to symmetry (its modes, P(within 2 mm)) from the copies that no
-    turn reaches plus the closed-form turn equal a search over every copy and turn."""
-    from tactojax.localize._belief import empty_belief, hypothesis_distances, reference_cloud
+def _symmetric_belief(bumps_view, belief_settings):
+    """A belief of one touch on a map with two symmetric copies and a continuous axis, its
+    hypotheses scattered over copies and turns of a reference pose: (belief, copies, reference)."""
+    from tactojax.localize._belief import empty_belief
     from tactojax.objects import ObjectSymmetry
 
     copies = ObjectSymmetry(axis="y", flips=("z",), centre=tuple(np.asarray(CENTRE))).copies()
@@ -102,6 +102,16 @@ def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belie
     hypotheses = turns @ copy @ T_reference @ noise
     belief = belief.replace(evidence=evidence, touch_valid=belief.touch_valid.at[0].set(True),
                             T_object_reference=hypotheses)
+    return belief, copies, T_reference
+
+
+def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belief_settings):
+    """The belief's distances up to symmetry (its modes, P(within 2 mm)) from the copies that no
+    turn reaches plus the closed-form turn equal a search over every copy and turn."""
+    from tactojax.localize._belief import hypothesis_distances, reference_cloud
+
+    belief, copies, T_reference = _symmetric_belief(bumps_view, belief_settings)
+    hypotheses, M = belief.T_object_reference, belief.log_weights.shape[0]
     distances = np.asarray(hypothesis_distances(belief, T_reference, symmetric=True))
     moments = [cloud_moments(*reference_cloud(belief))]
     for m in range(M):
@@ -111,3 +121,45 @@ def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belie
         assert distances[m] == pytest.approx(reference, abs=2e-3)
     plain = np.asarray(hypothesis_distances(belief, T_reference))
     assert np.all(distances <= plain + 1e-5) and np.any(distances < plain - 1.0)
+
+
+_NESTED_COPIES = """
+import jax, jax.numpy as jnp, jaxlie, numpy as np
+from tactojax.localize._evaluate import closest_copy_square, cloud_moments
+
+rng = np.random.default_rng(5)
+poses = lambda n: jaxlie.SE3.exp(jnp.asarray(rng.normal(0, 1, (n, 6)), jnp.float32))
+copies, hypotheses = poses(2), poses(2 * 8).wxyz_xyz.reshape(2, 8, 7)
+mean, covariance = (x[None] for x in cloud_moments(jnp.asarray(rng.normal(0, 4, (50, 3)), jnp.float32),
+                                                   jnp.ones(50, bool)))
+one = lambda T: jaxlie.SE3(jnp.reshape(T, (1, 7)))
+
+def square(T_true, T_estimate, axis):
+    return closest_copy_square(mean, covariance, jnp.ones(1, bool), one(T_true), one(T_estimate), copies, axis,
+                               jnp.array([1.0, 2.0, 3.0]))
+
+for axis in (jnp.zeros(3), jnp.array([0.0, 1.0, 0.0])):
+    nested = jax.vmap(lambda H: jax.vmap(lambda start: jax.vmap(lambda h: square(h, start, axis))(H))(H))
+    got = np.asarray(jax.jit(nested)(hypotheses))  # (beliefs, starts, hypotheses)
+    for b, i, j in [(0, 0, 1), (1, 3, 7), (1, 6, 2)]:
+        want = float(jax.jit(square)(hypotheses[b, j], hypotheses[b, i], axis))
+        assert abs(got[b, i, j] - want) <= 1e-3 + 1e-4 * want, (got[b, i, j], want)
+print("ok")
+"""
+
+
+def test_copies_nested_in_vmaps_compile_with_the_default_emitters():
+    """The closest of two symmetric copies, vmapped over beliefs and, within each, over the poses
+    measured from and the hypotheses (as the new-grasps evaluation's credible sets run it), equals
+    one pair of poses at a time, compiled as a user's process compiles it. A vmap over the copies
+    inside crashed XLA's default CPU fusion emitters (jaxlib 0.10.2); the suite compiles with the
+    older ones (conftest), so this runs in a fresh process without them."""
+    import os
+    import subprocess
+    import sys
+
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split()
+             if not f.startswith(("--xla_cpu_use_fusion_emitters", "--xla_backend_optimization_level"))]
+    run = subprocess.run([sys.executable, "-c", _NESTED_COPIES], capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "XLA_FLAGS": " ".join(flags), "JAX_PLATFORMS": "cpu"})
+    assert run.returncode == 0 and run.stdout.strip() == "ok", (run.returncode, run.stderr[-2000:])
