@@ -140,9 +140,9 @@ def closest_copy_square(
                    for T in (copy, turn @ copy)]
         return jnp.minimum(*squares)
 
-    # A loop over the copies, not a vmap: vmapped copies nested in two more vmaps (beliefs x
-    # hypotheses, as the new-grasps evaluation runs it) crash XLA's CPU compiler (jaxlib 0.10.2:
-    # a segmentation fault with two or more copies; tests/localize/test_evaluate.py).
+    # A loop over the copies, not a vmap: vmapped copies nested in the new-grasps evaluation's
+    # vmaps (beliefs x poses x hypotheses) crash XLA's default CPU fusion emitters (jaxlib 0.10.2:
+    # a segmentation fault with two or more copies; tests/localize/test_symmetric_error.py).
     return jnp.min(jax.lax.map(copy_square, symmetries))
 
 
