@@ -15,8 +15,8 @@ def test_single_touches_fused_episodes_and_calibration_records_agree(bumps_view,
     assert single.rmse.shape == (4,) and all(f.rmse.shape == (2,) for f in fused)
     # Every touch is found (the map holds the surface around it), and the belief knows it.
     assert np.all(single.rmse < 0.5) and np.all(fused[1].rmse < 0.5)
-    # (P(within 2 mm) is the mass near the best times the default P(the search found the truth's
-    # mode) after one touch, 0.78.)
+    # (P(within 2 mm) is the mass near the best times the map's P(the search found the truth's
+    # mode) after one touch.)
     found = float(bumps_view.calibration.found_probability(1))
     assert np.all(single.probability > 0.5 * found) and np.all(single.covered)
     # An episode's first grasp alone (one finger) is its first single touch: the same belief.
