@@ -80,10 +80,10 @@ def test_no_axis_turns_nothing():
     np.testing.assert_allclose(np.asarray(turn.wxyz_xyz), np.asarray(jaxlie.SE3.identity().wxyz_xyz), atol=1e-6)
 
 
-def _symmetric_belief(bumps_view, belief_settings):
-    """A belief of one touch on a map with two symmetric copies and a continuous axis, its
-    hypotheses scattered over copies and turns of a reference pose: (belief, copies, reference)."""
-    from tactojax.localize._belief import empty_belief
+def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belief_settings):
+    """The belief's distances up to symmetry (its modes, P(within 2 mm)) from the copies that no
+    turn reaches plus the closed-form turn equal a search over every copy and turn."""
+    from tactojax.localize._belief import empty_belief, hypothesis_distances, reference_cloud
     from tactojax.objects import ObjectSymmetry
 
     copies = ObjectSymmetry(axis="y", flips=("z",), centre=tuple(np.asarray(CENTRE))).copies()
@@ -102,16 +102,6 @@ def _symmetric_belief(bumps_view, belief_settings):
     hypotheses = turns @ copy @ T_reference @ noise
     belief = belief.replace(evidence=evidence, touch_valid=belief.touch_valid.at[0].set(True),
                             T_object_reference=hypotheses)
-    return belief, copies, T_reference
-
-
-def test_belief_distances_take_the_copies_and_the_closest_turn(bumps_view, belief_settings):
-    """The belief's distances up to symmetry (its modes, P(within 2 mm)) from the copies that no
-    turn reaches plus the closed-form turn equal a search over every copy and turn."""
-    from tactojax.localize._belief import hypothesis_distances, reference_cloud
-
-    belief, copies, T_reference = _symmetric_belief(bumps_view, belief_settings)
-    hypotheses, M = belief.T_object_reference, belief.log_weights.shape[0]
     distances = np.asarray(hypothesis_distances(belief, T_reference, symmetric=True))
     moments = [cloud_moments(*reference_cloud(belief))]
     for m in range(M):
