@@ -4,8 +4,9 @@ A new-grasps test set of the object (episodes of G grasps, the object staying pu
 episode; simulated once and cached, or ``--test DIR``) is played as the sensor's camera sees it:
 every grasp as ``settle + hold`` frames of the finger at rest, then ``gap`` frames without
 contact (the gripper opens and moves on). The frames are written to a lossless video and read
-back through ``OpenCVCamera``; each goes with the gripper's pose and opening at that frame
-(``live_estimates(..., gripper_pose=...)``), exactly as ``tactojax localize-live`` runs. The
+back through ``OpenCVCamera`` (decoded ahead in a background thread, ``--read-ahead``); each
+goes with the gripper's pose and opening at that frame (``live_estimates(...,
+gripper_pose=...)``), as ``tactojax localize-live`` runs. The
 ``Localizer`` updates its belief once per settled grasp and fuses the grasps of an episode by
 their poses (the kinematics); it is reset between episodes (the object is put down elsewhere).
 
@@ -124,6 +125,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--realtime", action="store_true",
                         help="deliver the frames at --fps, as a live camera does, and report how many came out "
                              "more than a frame period late (default: as fast as the loop takes them)")
+    parser.add_argument("--read-ahead", type=int, default=4, metavar="N",
+                        help="frames each video is decoded ahead in a background thread (live_estimates' "
+                             "read_ahead; 0: decoded in the loop, as before 2026-11-28; default 4)")
     parser.add_argument("--no-reference", action="store_true", help="leave out the stage-by-stage reference")
     parser.add_argument("--synchronous-update", action="store_true",
                         help="update the belief inside the frame call that settles a grasp (default: in the "
@@ -219,7 +223,8 @@ def play_live(args, localizer, video, opposite_video, openings, poses, frames_pe
     with OpenCVCamera(video, gelslim(scale=0.5)) as video_camera, CompilationCounter() as compiles:
         camera = PacedCamera(video_camera, args.fps) if args.realtime else video_camera
         for frame, estimate in live_estimates(camera, localizer, next_opening, second_camera=second_camera,
-                                              gripper_pose=lambda frame: jaxlie.SE3(poses[frame.index])):
+                                              gripper_pose=lambda frame: jaxlie.SE3(poses[frame.index]),
+                                              read_ahead=0 if args.realtime else args.read_ahead):
             statistics.add(frame, estimate)
             if args.realtime:
                 delays.append(camera.delay_s())
@@ -365,7 +370,8 @@ def main() -> None:
     result = {
         "object": name, "map_imprints": len(tactile_map), "test": str(test), "episodes": episodes,
         "grasps_per_episode": grasps, "fingers": args.fingers, "settle_frames": settle, "hold_frames": args.hold,
-        "gap_frames": args.gap, "video": str(video), "calibrated": calibration is not None,
+        "gap_frames": args.gap, "read_ahead": 0 if args.realtime else args.read_ahead, "video": str(video),
+        "calibrated": calibration is not None,
         "background_update": not args.synchronous_update,
         "compile_s": localizer.compile_s, "live": live,
         "update_frame_ms": {"median": float(np.median(updated_ms)) if updated_ms else None,

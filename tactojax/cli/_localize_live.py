@@ -6,6 +6,9 @@ from tactojax.cli._map import DEFAULT_MODEL
 from tactojax.cli._maps import add_encoder_argument, camera_source, maps_and_query_encoder
 from tactojax.localize._identify_episodes import OBJECT_TOLERANCE
 
+LIVE_READ_AHEAD = 4
+"""Frames each camera is decoded ahead when every frame is processed (a video file, --every-frame)."""
+
 
 def add_parser(commands) -> None:
     parser = commands.add_parser(
@@ -103,7 +106,8 @@ def run(args) -> int:
     source = camera_source(args.camera)
     every_frame = args.every_frame or (isinstance(source, str) and Path(source).is_file())
     # From a live camera, settled grasps update the belief in a worker thread, so that no frame
-    # waits for it; a video file is read frame by frame, each update in its frame.
+    # waits for it; a video file is read frame by frame (decoded ahead in a thread), each update
+    # in its frame.
     localizer = (Localizer if args.no_tracking else Tracker)(maps, model, encoder, calibrations=calibrations,
                                                              surfaces=[stored_surface(p) for p in args.maps],
                                                              live=LiveSettings(background_update=not every_frame,
@@ -124,7 +128,8 @@ def run(args) -> int:
         with OpenCVCamera(source, localizer.image_shape[:2], corners=parse_corners(args.corners),
                           time_offset_s=args.time_offset_s) as camera, CompilationCounter() as compiles:
             bar = tqdm(live_estimates(camera, localizer, opening, gripper_pose=lookup, second_camera=second_camera,
-                                      max_frames=args.frames, latest_only=not every_frame),
+                                      max_frames=args.frames, latest_only=not every_frame,
+                                      read_ahead=LIVE_READ_AHEAD if every_frame else 0),
                        total=args.frames, unit="frame")
             for frame, estimate in bar:
                 statistics.add(frame, estimate)

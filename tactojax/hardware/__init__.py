@@ -40,6 +40,7 @@ from tactojax.hardware._camera import rectify_image as rectify_image
 from tactojax.hardware._camera import validate_corners as validate_corners
 from tactojax.hardware._camera import write_video as write_video
 from tactojax.hardware._live import LatestFrame as LatestFrame
+from tactojax.hardware._live import ReadAhead as ReadAhead
 from tactojax.hardware._live import LiveStatistics as LiveStatistics
 from tactojax.hardware._live import PoseLookup as PoseLookup
 from tactojax.hardware._live import live_estimates as live_estimates

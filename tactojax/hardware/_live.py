@@ -13,6 +13,7 @@ percentiles, skipped frames, stale poses and recompilations.
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -74,6 +75,55 @@ class LatestFrame:
         self._thread.join(timeout=2.0)
 
 
+class ReadAhead:
+    """Reads a camera in a background thread, every frame in order, up to ``depth`` frames ahead
+    of the loop: a camera whose read decodes (a video file, a compressed stream) then decodes
+    while the localizer runs, where it would otherwise add its time to every frame's.
+
+    Args:
+        camera: the frame source.
+        depth: frames read but not yet taken, at most (>= 1).
+    """
+
+    def __init__(self, camera: Camera, depth: int = 4):
+        if depth < 1:
+            raise ValueError(f"read-ahead depth must be >= 1, got {depth}")
+        self.camera = camera
+        self._frames: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="tactojax-read-ahead", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                item = self.camera.read()
+            except BaseException as error:  # handed to the consumer (EndOfStream included), who raises it
+                item = error
+            while not self._stop.is_set():
+                try:
+                    self._frames.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+            if isinstance(item, BaseException):
+                return
+
+    def read(self, timeout_s: float = 5.0) -> Frame:
+        """The next frame in order (waits for it); the camera's error where its stream failed or ended."""
+        try:
+            item = self._frames.get(timeout=timeout_s)
+        except queue.Empty:
+            raise TimeoutError(f"no camera frame within {timeout_s} s") from None
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
 class PoseLookup:
     """The gripper pose at each frame's time, from a pose source (a robot's feed or a log).
 
@@ -118,6 +168,7 @@ def live_estimates(
     second_camera: Camera | None = None,
     max_frames: int | None = None,
     latest_only: bool = False,
+    read_ahead: int = 0,
 ) -> Iterator[tuple[Frame, LiveEstimate]]:
     """Localize every frame (or the newest one each time) as the camera delivers it.
 
@@ -134,29 +185,44 @@ def live_estimates(
             as ``second_image``; the stream ends when either does.
         max_frames: stop after this many estimates (None: until the stream ends).
         latest_only: read the camera in a background thread and always take the newest frame.
+        read_ahead: read each camera (the second one too) up to this many frames ahead in a
+            background thread (:class:`ReadAhead`), every frame still processed in order: the
+            frames' decoding overlaps the localizer. 0: read in the loop. Without
+            ``latest_only`` only.
 
     Yields:
         (frame, estimate) pairs.
     """
+    if latest_only and read_ahead:
+        raise ValueError("latest_only takes the newest frame, read_ahead every frame in order: choose one")
     read_opening = opening_mm if callable(opening_mm) else (lambda: float(opening_mm))
-    latest = LatestFrame(camera) if latest_only else None
+    readers = []
+    if latest_only:
+        readers.append(LatestFrame(camera))
+        read_frame = readers[-1].get
+    else:
+        read_frame = camera.read
+    read_second = None if second_camera is None else second_camera.read
+    if read_ahead:
+        readers.append(ReadAhead(camera, read_ahead))
+        read_frame = readers[-1].read
+        if second_camera is not None:
+            readers.append(ReadAhead(second_camera, read_ahead))
+            read_second = readers[-1].read
     count = 0
     try:
         while max_frames is None or count < max_frames:
             try:
-                frame = latest.get() if latest is not None else camera.read()
-            except EndOfStream:
-                return
-            try:
-                second = second_camera.read().image if second_camera is not None else None
+                frame = read_frame()
+                second = read_second().image if read_second is not None else None
             except EndOfStream:
                 return
             T_world_gripper = gripper_pose(frame) if gripper_pose is not None else None
             yield frame, localizer(frame.image, read_opening(), T_world_gripper, second)
             count += 1
     finally:
-        if latest is not None:
-            latest.close()
+        for reader in readers:
+            reader.close()
 
 
 @dataclass

@@ -2,11 +2,13 @@
 
 A control loop calls :class:`Localizer` once per camera frame, with the gripper's pose and
 opening at that frame (and the second finger's frame on a two-sensor gripper). Each frame runs
-one precompiled program (heightmap prediction, section IV, and whether the gel is touched);
-when a grasp has *settled* (``LiveSettings.settle_frames`` frames in contact with the gripper
-at rest), its touches (one per finger) update every map's pose belief once, with features
-from the encoder. A grasp lasts until a frame shows no contact (the gripper opened); only its
-first settled state counts, as the gripper may then carry the object. Successive grasps of an
+one precompiled program (heightmap prediction, section IV, and whether the gel is touched),
+or none on a frame without a clear colour change against the background, which cannot show
+contact (:func:`~tactojax.mapping.may_show_contact`, on the host). When a grasp has
+*settled* (``LiveSettings.settle_frames`` frames in contact with the gripper at rest), its
+touches (one per finger) update every map's pose belief once, with features from the encoder.
+A grasp lasts until a frame shows no contact (the gripper opened); only its first settled
+state counts, as the gripper may then carry the object. Successive grasps of an
 object that stays put between them are fused by their sensor poses (the kinematics);
 :meth:`Localizer.reset` forgets them (the object was moved, or another one is grasped). Between
 updates every frame reports the belief as it stands, the sensor pose moved with the gripper.
@@ -42,12 +44,10 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from jax.sharding import SingleDeviceSharding
 
 from tactojax.features import Encoder
 from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
-from tactojax.geometry import opposite_sensor_pose, sensor_pose
 from tactojax.localize._active import ActiveSettings, observe_failed_grasp
 from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
 from tactojax.localize._identify_episodes import (OBJECT_TOLERANCE, likely_objects, object_probabilities,
@@ -57,7 +57,7 @@ from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch, _s
 from tactojax.localize._stacked_maps import StackedMaps
 from tactojax.localize._predict_touch import StackedMarchingGrids, map_marching_grid
 from tactojax.localize._surface import MapSurface
-from tactojax.mapping import TactileMap, observed_contact, shows_contact
+from tactojax.mapping import TactileMap, may_show_contact, observed_contact, shows_contact
 from tactojax.shape import ShapeModel, coordinate_bias, predict
 
 
@@ -71,10 +71,11 @@ class Frame(NamedTuple):
     opening_mm: float
     gripper: np.ndarray | None
     """The gripper's pose, (7,) wxyz_xyz, mm (None: not given)."""
-    heightmap: jax.Array
-    """(H, W) predicted heightmap, mm."""
-    mask: jax.Array
-    """(H, W) contact mask."""
+    heightmap: jax.Array | None
+    """(H, W) predicted heightmap, mm (None on a frame without a clear colour change, which
+    shows no contact: the shape model does not run on it)."""
+    mask: jax.Array | None
+    """(H, W) contact mask (None where ``heightmap`` is)."""
     contact: bool
     """Whether the frame shows a touch."""
 
@@ -231,18 +232,64 @@ def check_gripper_pose(T_world_gripper) -> np.ndarray | None:
     return pose
 
 
-def frame_kinematics(gripper: jax.Array, opening: jax.Array, T_world_object: jax.Array,
-                     T_object_sensor: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """The poses a frame needs, (7,) wxyz_xyz each, mm: the sensor finger's and the opposite
-    finger's ``T_world_sensor`` for a gripper pose and opening; that sensor in the frame of an
-    object at ``T_world_object``; and the object's pose in the world when that sensor sits at
-    ``T_object_sensor`` in its frame. One compiled program: a frame runs no eager pose arithmetic
-    (each such operation would compile once on first use, mid-loop, and dispatch every frame)."""
-    T_world_gripper = jaxlie.SE3(gripper)
-    T_world_sensor = sensor_pose(T_world_gripper, opening)
-    return (T_world_sensor.wxyz_xyz, opposite_sensor_pose(T_world_gripper, opening).wxyz_xyz,
-            (jaxlie.SE3(T_world_object).inverse() @ T_world_sensor).wxyz_xyz,
-            (T_world_sensor @ jaxlie.SE3(T_object_sensor).inverse()).wxyz_xyz)
+def frame_kinematics(gripper: np.ndarray, opening: float, T_world_object: np.ndarray,
+                     T_object_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The poses a frame needs, (7,) float32 wxyz_xyz each, mm: the sensor finger's and the
+    opposite finger's ``T_world_sensor`` for a gripper pose and opening
+    (:func:`tactojax.geometry.sensor_pose`, :func:`~tactojax.geometry.opposite_sensor_pose`);
+    that sensor in the frame of an object at ``T_world_object``; and the object's pose in the
+    world when that sensor sits at ``T_object_sensor`` in its frame.
+
+    Plain Python floats (double precision) on the host: a compiled program's dispatch and
+    read-back cost 0.15-0.2 ms a frame, on a CPU and beside a GPU alike, ten times this
+    arithmetic (issue 27)."""
+    T_world_gripper = tuple(np.asarray(gripper, np.float64).tolist())
+    T_gripper_sensor = (*_WXYZ_GRIPPER_SENSOR, 0.0, 0.5 * float(opening), 0.0)
+    T_world_sensor = _compose(T_world_gripper, T_gripper_sensor)
+    T_world_opposite = _compose(_compose(T_world_gripper, _FLIP_ABOUT_Z), T_gripper_sensor)
+    T_object_world = _inverse(tuple(np.asarray(T_world_object, np.float64).tolist()))
+    T_sensor_object = _inverse(tuple(np.asarray(T_object_sensor, np.float64).tolist()))
+    poses = (T_world_sensor, T_world_opposite, _compose(T_object_world, T_world_sensor),
+             _compose(T_world_sensor, T_sensor_object))
+    return tuple(np.array(pose, np.float32) for pose in poses)
+
+
+Pose = tuple[float, float, float, float, float, float, float]
+"""A pose as plain floats, wxyz_xyz (the live loop's host-side arithmetic)."""
+
+
+def _quaternion_product(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float, float]:
+    """Hamilton product of wxyz quaternions (jaxlie's ``SO3.multiply``)."""
+    w0, x0, y0, z0 = a
+    w1, x1, y1, z1 = b
+    return (w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1, w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+            w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1)
+
+
+def _rotate(wxyz: Sequence[float], vector: Sequence[float]) -> tuple[float, float, float]:
+    """A 3-vector turned by a unit quaternion (q v q*)."""
+    w, x, y, z = wxyz
+    return _quaternion_product(_quaternion_product(wxyz, (0.0, *vector)), (w, -x, -y, -z))[1:]
+
+
+def _compose(T_a: Pose, T_b: Pose) -> Pose:
+    """``T_a @ T_b``."""
+    t = _rotate(T_a[:4], T_b[4:])
+    return (*_quaternion_product(T_a[:4], T_b[:4]), T_a[4] + t[0], T_a[5] + t[1], T_a[6] + t[2])
+
+
+def _inverse(T: Pose) -> Pose:
+    """The inverse pose."""
+    w, x, y, z = T[:4]
+    t = _rotate((w, -x, -y, -z), T[4:])
+    return (w, -x, -y, -z, -t[0], -t[1], -t[2])
+
+
+_WXYZ_GRIPPER_SENSOR = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)
+"""The sensor frame's rotation in the gripper frame (:func:`tactojax.geometry.T_gripper_sensor`:
+x_s = x_g, y_s = z_g, z_s = -y_g, a quarter turn about x)."""
+_FLIP_ABOUT_Z = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+"""A half turn about the gripper's z axis: the opposite finger (:func:`~tactojax.geometry.opposite_sensor_pose`)."""
 
 
 def gripper_motion(previous: np.ndarray, gripper: np.ndarray) -> tuple[float, float]:
@@ -299,6 +346,7 @@ class Localizer:
         image = jax.ShapeDtypeStruct(self.image_shape, jnp.uint8)
         # On the device once (a model of NumPy arrays would be copied to an accelerator every frame).
         self._model = jax.device_put((model, jax.jit(coordinate_bias)(model)))
+        self._background = np.asarray(model.background, np.float32)  # on the host: may_show_contact
         self._observe = jax.jit(lambda model, bias, image: observe(model, image, bias)[1:]).lower(
             *self._model, image).compile()
         self._encoder = encoder
@@ -317,13 +365,6 @@ class Localizer:
         self._update = jax.jit(_stacked_update, static_argnums=6).lower(
             self.stack, np.int32(0), self._empty[0], example_touch, pose, np.int32(-1), settings).compile()
         self._summarise = belief_digest.lower(self._empty[0], live.modes).compile()
-        scalar = jax.ShapeDtypeStruct((), jnp.float32)
-        # A frame's pose arithmetic runs on the host's CPU whatever the default device: on an
-        # accelerator its launch and read-back would cost more than the arithmetic (0.77 against
-        # 0.14 ms per frame on an H200 machine).
-        host = SingleDeviceSharding(jax.devices("cpu")[0])
-        self._kinematics = jax.jit(frame_kinematics, in_shardings=host, out_shardings=host).lower(
-            pose.wxyz_xyz, scalar, pose.wxyz_xyz, pose.wxyz_xyz).compile()
         self.compile_s = time.perf_counter() - start
         """Seconds spent compiling at start-up."""
         self._worker: ThreadPoolExecutor | None = None
@@ -378,11 +419,14 @@ class Localizer:
     def observe_frame(self, image: np.ndarray, opening_mm: float, T_world_gripper: jaxlie.SE3 | None = None,
                       second_image: np.ndarray | None = None) -> Frame:
         """One frame checked (ValueError for a bad image, opening or pose) and observed: its
-        predicted heightmap and contact mask, and whether it shows a touch (one compiled program)."""
+        predicted heightmap and contact mask, and whether it shows a touch (one compiled program;
+        none on a frame without a clear colour change, :func:`tactojax.mapping.may_show_contact`)."""
         image = check_frame(image, opening_mm, self.image_shape)
         if second_image is not None:
             second_image = check_frame(second_image, opening_mm, self.image_shape, "second_image")
         gripper = check_gripper_pose(T_world_gripper)
+        if not may_show_contact(image, self._background):
+            return Frame(image, second_image, opening_mm, gripper, None, None, False)
         heightmap, mask, contact = self._observe(*self._model, image)
         return Frame(image, second_image, opening_mm, gripper, heightmap, mask, bool(contact))
 
@@ -440,13 +484,11 @@ class Localizer:
 
     def _poses(self, gripper: np.ndarray | None, opening_mm: float, T_world_object: np.ndarray | None = None,
                T_object_sensor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`frame_kinematics` (compiled) as (7,) float32 NumPy poses; a missing gripper pose
-        is the identity."""
+        """:func:`frame_kinematics` as (7,) float32 NumPy poses; a missing gripper pose is the identity."""
         identity = _IDENTITY
-        return jax.device_get(self._kinematics(
-            identity if gripper is None else gripper, np.float32(opening_mm),
-            identity if T_world_object is None else T_world_object,
-            identity if T_object_sensor is None else T_object_sensor))
+        return frame_kinematics(identity if gripper is None else gripper, opening_mm,
+                                identity if T_world_object is None else T_world_object,
+                                identity if T_object_sensor is None else T_object_sensor)
 
     def _fuse_grasp(self, frame: Frame, *, background: bool) -> None:
         """Update the beliefs of the maps in play with this grasp's touches, now or in the worker thread."""
@@ -473,7 +515,7 @@ class Localizer:
         touches = [(Touch(heightmap=frame.heightmap, mask=frame.mask, feature=self._encode(self._encoder, image),
                           opening=opening),
                     T_world_sensor)]
-        if second_image is not None:
+        if second_image is not None and may_show_contact(second_image, self._background):
             second_heightmap, second_mask, second_contact = self._observe(*self._model, second_image)
             if bool(second_contact):
                 touches.append((Touch(heightmap=second_heightmap, mask=second_mask,

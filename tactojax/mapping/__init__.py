@@ -4,6 +4,7 @@ from tactojax.mapping._build import DEFAULT_POINTS_PER_IMPRINT as DEFAULT_POINTS
 from tactojax.mapping._build import build_tactile_map as build_tactile_map
 from tactojax.mapping._build import observed_contact as observed_contact
 from tactojax.mapping._build import shows_contact as shows_contact
+from tactojax.mapping._build import may_show_contact as may_show_contact
 from tactojax.mapping._build import sample_contact_pixels as sample_contact_pixels
 from tactojax.mapping._build import sample_contact_points as sample_contact_points
 from tactojax.mapping._cloud import point_surface_distances as point_surface_distances
@@ -50,6 +51,7 @@ __all__ = [
     "points_to_pixels",
     "sample_contact_pixels",
     "shows_contact",
+    "may_show_contact",
     "perturb_kinematics",
     "point_surface_distances",
     "sample_contact_points",

@@ -1,12 +1,19 @@
-"""Exact quantiles by selection: the values a sort would put at given ranks, without the sort.
+"""Exact quantiles: the values a sort would put at given ranks, by selection on a CPU.
 
 XLA's CPU sort calls a compiled comparator per comparison; sorting the 19,200 heights of a
 120 x 160 heightmap to read one quantile took about 3 ms on 2 busy cores, a third of
 ``predict`` (issue 17). Selection finds the same values with 32 counting passes in about
 0.3 ms (``benchmarks/heightmap_speed.py``).
+
+On a GPU the opposite holds: the 32 passes are a loop of 128 kernel launches, 0.16 ms of GPU
+time but about 0.8 ms of launch overhead per heightmap on an H200 machine (issue 27), where one
+sort is a handful of kernels. :func:`order_statistics` therefore selects on a CPU and sorts
+elsewhere (``lax.platform_dependent``); both return the same elements.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax.numpy as jnp
 import numpy as np
@@ -15,7 +22,28 @@ from jaxtyping import Array, Float, UInt
 
 
 def order_statistics(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
-    """``jnp.sort(values)[ranks]``, found by bisection instead of a sort.
+    """``jnp.sort(values)[ranks]``: by bisection on a CPU (:func:`order_statistics_by_bisection`),
+    by a sort on an accelerator (see the module docstring).
+
+    Args:
+        values: (N,) finite floats.
+        ranks: R static positions in the sorted order, each in [0, N).
+
+    Returns:
+        (R,) the values at those positions.
+    """
+    return lax.platform_dependent(values, cpu=functools.partial(order_statistics_by_bisection, ranks=ranks),
+                                  default=functools.partial(order_statistics_by_sort, ranks=ranks))
+
+
+def order_statistics_by_sort(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
+    """``jnp.sort(values)[ranks]`` (what :func:`order_statistics` runs on an accelerator)."""
+    return jnp.sort(values)[np.asarray(ranks)]
+
+
+def order_statistics_by_bisection(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
+    """``jnp.sort(values)[ranks]``, found by bisection instead of a sort (what
+    :func:`order_statistics` runs on a CPU).
 
     Every float maps to an unsigned integer key of its width with the same order
     (:func:`_sortable_keys`). The key of rank ``r`` is the smallest key ``t`` with more than

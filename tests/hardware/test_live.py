@@ -89,3 +89,26 @@ def test_a_second_camera_is_read_in_step_and_passed_as_the_second_image():
     alone = RecordingLocalizer()
     list(live_estimates(ListCamera([0.0]), alone, 30.0))
     assert alone.second == [None]
+
+
+class FailingCamera(ListCamera):
+    """Fails at its third read."""
+
+    def read(self) -> Frame:
+        if len(self.frames) == 1:
+            raise RuntimeError("camera unplugged")
+        return super().read()
+
+
+def test_read_ahead_hands_every_frame_in_order_and_the_camera_error():
+    localizer, second = RecordingLocalizer(), ListCamera([0.0, 0.1, 0.2, 0.3])
+    for frame in second.frames:
+        frame.image[...] += 10
+    out = list(live_estimates(ListCamera([0.0, 0.1, 0.2, 0.3, 0.4]), localizer, 30.0, second_camera=second,
+                              read_ahead=2))
+    assert [frame.index for frame, _ in out] == [0, 1, 2, 3]  # the second camera ended first
+    assert [image for image, _, _ in localizer.calls] == [0, 1, 2, 3] and localizer.second == [10, 11, 12, 13]
+    with pytest.raises(RuntimeError, match="unplugged"):
+        list(live_estimates(FailingCamera([0.0, 0.1, 0.2]), RecordingLocalizer(), 30.0, read_ahead=1))
+    with pytest.raises(ValueError, match="choose one"):
+        next(live_estimates(ListCamera([0.0]), RecordingLocalizer(), 30.0, read_ahead=1, latest_only=True))

@@ -326,3 +326,25 @@ def test_tracker_starts_from_a_given_pose_and_checks_it(tracker, grasp_frames):
         tracker.start("banana", T_true)
     with pytest.raises(ValueError, match="finite"):
         tracker.start(maps[0].object_id, jaxlie.SE3(jnp.full(7, jnp.nan)))
+
+
+def test_frame_kinematics_on_the_host_match_the_geometry_module():
+    """The live loop's host-side pose arithmetic (plain floats) against tactojax.geometry's (JAX, jaxlie)."""
+    from tactojax.geometry import opposite_sensor_pose
+    from tactojax.localize._localizer import frame_kinematics
+
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        gripper, T_world_object, T_object_sensor = (
+            jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3(jnp.asarray(q / np.linalg.norm(q), jnp.float32)),
+                                                     jnp.asarray(rng.normal(size=3) * 100.0, jnp.float32))
+            for q in rng.normal(size=(3, 4)))
+        opening = np.float32(rng.uniform(5.0, 80.0))
+        got = frame_kinematics(np.asarray(gripper.wxyz_xyz), opening, np.asarray(T_world_object.wxyz_xyz),
+                               np.asarray(T_object_sensor.wxyz_xyz))
+        T_world_sensor = sensor_pose(gripper, opening)
+        expected = (T_world_sensor, opposite_sensor_pose(gripper, opening), T_world_object.inverse() @ T_world_sensor,
+                    T_world_sensor @ T_object_sensor.inverse())
+        for pose, reference in zip(got, expected):
+            assert pose.dtype == np.float32 and pose.shape == (7,)
+            np.testing.assert_allclose(pose, np.asarray(reference.wxyz_xyz), atol=2e-4)

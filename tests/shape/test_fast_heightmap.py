@@ -19,7 +19,8 @@ from tactojax.shape import (ShapeModel, build_network, coordinate_bias, init_sha
                             predict, predict_batch, zero_background)
 from tactojax.shape._models import MASK_SHARPNESS_MM, SlopePoissonNet, patch_planes, pixel_patches
 from tactojax.shape._predict import network_input, raw_prediction
-from tactojax.shape._quantile import order_statistics, quantile
+from tactojax.shape._quantile import (order_statistics, order_statistics_by_bisection, order_statistics_by_sort,
+                                      quantile)
 
 
 # --- the reference: the replaced formulation --------------------------------------------------
@@ -174,10 +175,21 @@ def test_quantile_equals_jnp_quantile_exactly(shape):
 def test_order_statistics_with_ties_negative_zero_and_float64():
     values = jnp.asarray([3.0, -0.0, 0.0, -2.5, 3.0, 3.0, -1e-30, 1e30, -2.5], jnp.float32)
     np.testing.assert_array_equal(order_statistics(values, tuple(range(9))), jnp.sort(values))
+    np.testing.assert_array_equal(order_statistics_by_bisection(values, tuple(range(9))), jnp.sort(values))
     with jax.enable_x64(True):
         wide = jnp.asarray(np.random.default_rng(2).normal(size=101) * 1e-9 + 1.0)
         assert wide.dtype == jnp.float64
         assert quantile(wide, 0.1) == jnp.quantile(wide, 0.1)
+
+
+def test_both_order_statistics_pick_the_same_elements():
+    """The bisection (a CPU's) and the sort (an accelerator's) return the same values, bit for bit."""
+    rng = np.random.default_rng(5)
+    values = jnp.asarray(rng.normal(size=19_200) * 10.0 ** rng.uniform(-3, 3, 19_200), jnp.float32)
+    ranks = (0, 1_919, 1_920, 9_600, 19_199)
+    by_bisection = jax.jit(order_statistics_by_bisection, static_argnums=1)(values, ranks)
+    np.testing.assert_array_equal(by_bisection, jax.jit(order_statistics_by_sort, static_argnums=1)(values, ranks))
+    np.testing.assert_array_equal(by_bisection, np.sort(np.asarray(values))[list(ranks)])
 
 
 def test_quantile_gradient_matches_the_sort():
