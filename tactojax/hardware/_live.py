@@ -200,15 +200,15 @@ def live_estimates(
     if latest_only:
         readers.append(LatestFrame(camera))
         read_frame = readers[-1].get
+    elif read_ahead:
+        readers.append(ReadAhead(camera, read_ahead))
+        read_frame = readers[-1].read
     else:
         read_frame = camera.read
     read_second = None if second_camera is None else second_camera.read
-    if read_ahead:
-        readers.append(ReadAhead(camera, read_ahead))
-        read_frame = readers[-1].read
-        if second_camera is not None:
-            readers.append(ReadAhead(second_camera, read_ahead))
-            read_second = readers[-1].read
+    if second_camera is not None and read_ahead:
+        readers.append(ReadAhead(second_camera, read_ahead))
+        read_second = readers[-1].read
     count = 0
     try:
         while max_frames is None or count < max_frames:

@@ -48,6 +48,7 @@ import numpy as np
 from tactojax.features import Encoder
 from tactojax.features import encode_image
 from tactojax.features._encoder import apply_encoder
+from tactojax.geometry._kinematics import as_host_pose, compose_on_host, finger_poses_on_host, inverse_on_host
 from tactojax.localize._active import ActiveSettings, observe_failed_grasp
 from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
 from tactojax.localize._identify_episodes import (OBJECT_TOLERANCE, likely_objects, object_probabilities,
@@ -240,56 +241,15 @@ def frame_kinematics(gripper: np.ndarray, opening: float, T_world_object: np.nda
     that sensor in the frame of an object at ``T_world_object``; and the object's pose in the
     world when that sensor sits at ``T_object_sensor`` in its frame.
 
-    Plain Python floats (double precision) on the host: a compiled program's dispatch and
-    read-back cost 0.15-0.2 ms a frame, on a CPU and beside a GPU alike, ten times this
-    arithmetic (issue 27)."""
-    T_world_gripper = tuple(np.asarray(gripper, np.float64).tolist())
-    T_gripper_sensor = (*_WXYZ_GRIPPER_SENSOR, 0.0, 0.5 * float(opening), 0.0)
-    T_world_sensor = _compose(T_world_gripper, T_gripper_sensor)
-    T_world_opposite = _compose(_compose(T_world_gripper, _FLIP_ABOUT_Z), T_gripper_sensor)
-    T_object_world = _inverse(tuple(np.asarray(T_world_object, np.float64).tolist()))
-    T_sensor_object = _inverse(tuple(np.asarray(T_object_sensor, np.float64).tolist()))
-    poses = (T_world_sensor, T_world_opposite, _compose(T_object_world, T_world_sensor),
-             _compose(T_world_sensor, T_sensor_object))
+    Plain Python floats (double precision) on the host, through the geometry module's host twins
+    of its pose functions: a compiled program's dispatch and read-back cost 0.15-0.2 ms a frame,
+    on a CPU and beside a GPU alike, ten times this arithmetic (issue 27)."""
+    T_world_sensor, T_world_opposite = finger_poses_on_host(as_host_pose(gripper), float(opening))
+    T_object_world = inverse_on_host(as_host_pose(T_world_object))
+    T_sensor_object = inverse_on_host(as_host_pose(T_object_sensor))
+    poses = (T_world_sensor, T_world_opposite, compose_on_host(T_object_world, T_world_sensor),
+             compose_on_host(T_world_sensor, T_sensor_object))
     return tuple(np.array(pose, np.float32) for pose in poses)
-
-
-Pose = tuple[float, float, float, float, float, float, float]
-"""A pose as plain floats, wxyz_xyz (the live loop's host-side arithmetic)."""
-
-
-def _quaternion_product(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float, float]:
-    """Hamilton product of wxyz quaternions (jaxlie's ``SO3.multiply``)."""
-    w0, x0, y0, z0 = a
-    w1, x1, y1, z1 = b
-    return (w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1, w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
-            w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1)
-
-
-def _rotate(wxyz: Sequence[float], vector: Sequence[float]) -> tuple[float, float, float]:
-    """A 3-vector turned by a unit quaternion (q v q*)."""
-    w, x, y, z = wxyz
-    return _quaternion_product(_quaternion_product(wxyz, (0.0, *vector)), (w, -x, -y, -z))[1:]
-
-
-def _compose(T_a: Pose, T_b: Pose) -> Pose:
-    """``T_a @ T_b``."""
-    t = _rotate(T_a[:4], T_b[4:])
-    return (*_quaternion_product(T_a[:4], T_b[:4]), T_a[4] + t[0], T_a[5] + t[1], T_a[6] + t[2])
-
-
-def _inverse(T: Pose) -> Pose:
-    """The inverse pose."""
-    w, x, y, z = T[:4]
-    t = _rotate((w, -x, -y, -z), T[4:])
-    return (w, -x, -y, -z, -t[0], -t[1], -t[2])
-
-
-_WXYZ_GRIPPER_SENSOR = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)
-"""The sensor frame's rotation in the gripper frame (:func:`tactojax.geometry.T_gripper_sensor`:
-x_s = x_g, y_s = z_g, z_s = -y_g, a quarter turn about x)."""
-_FLIP_ABOUT_Z = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
-"""A half turn about the gripper's z axis: the opposite finger (:func:`~tactojax.geometry.opposite_sensor_pose`)."""
 
 
 def gripper_motion(previous: np.ndarray, gripper: np.ndarray) -> tuple[float, float]:
