@@ -35,6 +35,8 @@ from tactojax.shape._predict import init_shape_model as init_shape_model
 from tactojax.shape._predict import network_input as network_input
 from tactojax.shape._predict import predict as predict
 from tactojax.shape._predict import predict_batch as predict_batch
+from tactojax.shape._quantile import order_statistics as order_statistics
+from tactojax.shape._quantile import order_statistics_by_bisection as order_statistics_by_bisection
 from tactojax.shape._train import TrainConfig as TrainConfig
 from tactojax.shape._train import TrainState as TrainState
 from tactojax.shape._train import init_train_state as init_train_state
@@ -71,6 +73,8 @@ __all__ = [
     "integrate_gradient",
     "lookup_slope",
     "make_optimizer",
+    "order_statistics",
+    "order_statistics_by_bisection",
     "predict",
     "predict_batch",
     "robustness_study",

@@ -13,35 +13,34 @@ elsewhere (``lax.platform_dependent``); both return the same elements.
 
 from __future__ import annotations
 
-import functools
-
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Float, UInt
+from jaxtyping import Array, Float, Int, UInt
 
 
-def order_statistics(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
+def order_statistics(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
     """``jnp.sort(values)[ranks]``: by bisection on a CPU (:func:`order_statistics_by_bisection`),
     by a sort on an accelerator (see the module docstring).
 
     Args:
-        values: (N,) finite floats.
-        ranks: R static positions in the sorted order, each in [0, N).
+        values: (N,) floats, not NaN (infinities order as floats do).
+        ranks: R positions in the sorted order, each in [0, N): static, or traced (e.g. a count
+            of valid values).
 
     Returns:
         (R,) the values at those positions.
     """
-    return lax.platform_dependent(values, cpu=functools.partial(order_statistics_by_bisection, ranks=ranks),
-                                  default=functools.partial(order_statistics_by_sort, ranks=ranks))
+    return lax.platform_dependent(values, jnp.asarray(ranks, jnp.int32), cpu=order_statistics_by_bisection,
+                                  default=order_statistics_by_sort)
 
 
-def order_statistics_by_sort(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
+def order_statistics_by_sort(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
     """``jnp.sort(values)[ranks]`` (what :func:`order_statistics` runs on an accelerator)."""
-    return jnp.sort(values)[np.asarray(ranks)]
+    return jnp.sort(values)[jnp.asarray(ranks, jnp.int32)]
 
 
-def order_statistics_by_bisection(values: Float[Array, "N"], ranks: tuple[int, ...]) -> Float[Array, "R"]:
+def order_statistics_by_bisection(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
     """``jnp.sort(values)[ranks]``, found by bisection instead of a sort (what
     :func:`order_statistics` runs on a CPU).
 
@@ -53,8 +52,8 @@ def order_statistics_by_bisection(values: Float[Array, "N"], ranks: tuple[int, .
     reaches that element, as through a sort.
 
     Args:
-        values: (N,) finite floats.
-        ranks: R static positions in the sorted order, each in [0, N).
+        values: (N,) floats, not NaN.
+        ranks: R positions in the sorted order, each in [0, N) (static or traced).
 
     Returns:
         (R,) the values at those positions.

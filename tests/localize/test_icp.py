@@ -169,9 +169,14 @@ def test_blocks_past_the_active_ones_are_never_read(problem):
     assert float(cloud_rmse(points, valid, T_true, blocked.T_object_sensor)) < 0.05
 
 
+@pytest.mark.parametrize("method", ["as_this_device_runs_it", "by_bisection", "by_comparison"])
 @pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
-def test_kth_smallest_equals_the_sort(size):
-    from tactojax.localize._icp import kth_smallest
+def test_kth_smallest_equals_the_sort(size, method):
+    """Both selections (a CPU's and an accelerator's) pick the sort's element, ties and inf included."""
+    from tactojax.localize import _icp
+
+    kth_smallest = {"as_this_device_runs_it": _icp.kth_smallest, "by_bisection": _icp.kth_smallest_by_bisection,
+                    "by_comparison": _icp.kth_smallest_by_comparison}[method]
 
     rng = np.random.default_rng(size)
     values = rng.normal(size=(6, size)).astype(np.float32)

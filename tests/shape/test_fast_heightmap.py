@@ -190,6 +190,10 @@ def test_both_order_statistics_pick_the_same_elements():
     by_bisection = jax.jit(order_statistics_by_bisection, static_argnums=1)(values, ranks)
     np.testing.assert_array_equal(by_bisection, jax.jit(order_statistics_by_sort, static_argnums=1)(values, ranks))
     np.testing.assert_array_equal(by_bisection, np.sort(np.asarray(values))[list(ranks)])
+    # Ranks as data (e.g. a count of valid values): the same elements, one program for any ranks.
+    traced = jnp.asarray(ranks, jnp.int32)
+    np.testing.assert_array_equal(jax.jit(order_statistics_by_bisection)(values, traced), by_bisection)
+    np.testing.assert_array_equal(jax.jit(order_statistics)(values, traced), by_bisection)
 
 
 def test_quantile_gradient_matches_the_sort():
