@@ -22,7 +22,7 @@ from tactojax.localize._correspondences import (candidate_poses, candidate_surfa
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._pose import PoseEstimate
 from tactojax.localize._solvers import SOLVERS, pose_step
-from tactojax.shape import order_statistics_by_bisection
+from tactojax.shape import order_statistics
 
 ROBUST_LOSSES = ("huber", "geman-mcclure", "none")
 ASSOCIATIONS = ("projective", "nearest")
@@ -80,42 +80,11 @@ def robust_weights(residual: Float[Array, "P"], valid: Bool[Array, "P"], setting
         magnitude = jnp.where(valid, jnp.abs(residual), jnp.inf)
         count = jnp.sum(valid)
         keep = jnp.maximum(jnp.ceil(settings.trim_fraction * count).astype(jnp.int32), 1)
-        threshold = kth_smallest(magnitude, jnp.clip(keep - 1, 0, residual.shape[0] - 1))
+        # The trimming threshold, read at every ICP iteration: selected, not sorted (a sort is
+        # slow on a CPU; the same element either way, see order_statistics).
+        threshold = order_statistics(magnitude, jnp.clip(keep - 1, 0, residual.shape[0] - 1)[None])[0]
         valid = valid & (jnp.abs(residual) <= threshold)
     return jnp.where(valid, weight, 0.0)
-
-
-RANK_SELECTION_MAX = 256
-"""Up to this many values, :func:`kth_smallest` compares all pairs on an accelerator instead of sorting."""
-
-
-def kth_smallest(values: Float[Array, "P"], k: Int[Array, ""]) -> Float[Array, ""]:
-    """``jnp.sort(values)[k]`` (0 <= k < P; NaN-free values), exactly: an element of ``values``.
-
-    The ICP loop reads one at every iteration (the trimming threshold), where XLA's CPU sort
-    would be slow (issue 17). On a CPU, by bisection on the values' bits
-    (:func:`~tactojax.shape.order_statistics`: 32 counting passes over P values); elsewhere, up
-    to ``RANK_SELECTION_MAX`` values, the largest value with at most ``k`` values below it, from
-    all P^2 comparisons in one fused reduction (one kernel on a GPU, where the bisection would
-    be a loop of launches), and a sort beyond. Both return the same element (on 2 CPU cores the
-    bisection refines a belief's first touch, 32 hypotheses x 10 iterations over 192 point
-    slots, in 21.9 ms against 26.1 ms by comparisons).
-    """
-    return jax.lax.platform_dependent(values, jnp.asarray(k, jnp.int32), cpu=kth_smallest_by_bisection,
-                                      default=kth_smallest_by_comparison)
-
-
-def kth_smallest_by_bisection(values: Float[Array, "P"], k: Int[Array, ""]) -> Float[Array, ""]:
-    """:func:`kth_smallest` on a CPU."""
-    return order_statistics_by_bisection(values, k[None])[0]
-
-
-def kth_smallest_by_comparison(values: Float[Array, "P"], k: Int[Array, ""]) -> Float[Array, ""]:
-    """:func:`kth_smallest` on an accelerator."""
-    if values.shape[0] > RANK_SELECTION_MAX:
-        return jnp.sort(values)[k]
-    below = jnp.sum(values[None, :] < values[:, None], axis=1)
-    return jnp.max(jnp.where(below <= k, values, -jnp.inf))
 
 
 def _exp(delta: Float[Array, "6"]) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:

@@ -36,7 +36,6 @@ from tactojax.shape._predict import network_input as network_input
 from tactojax.shape._predict import predict as predict
 from tactojax.shape._predict import predict_batch as predict_batch
 from tactojax.shape._quantile import order_statistics as order_statistics
-from tactojax.shape._quantile import order_statistics_by_bisection as order_statistics_by_bisection
 from tactojax.shape._train import TrainConfig as TrainConfig
 from tactojax.shape._train import TrainState as TrainState
 from tactojax.shape._train import init_train_state as init_train_state
@@ -74,7 +73,6 @@ __all__ = [
     "lookup_slope",
     "make_optimizer",
     "order_statistics",
-    "order_statistics_by_bisection",
     "predict",
     "predict_batch",
     "robustness_study",

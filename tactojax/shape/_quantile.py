@@ -7,8 +7,9 @@ XLA's CPU sort calls a compiled comparator per comparison; sorting the 19,200 he
 
 On a GPU the opposite holds: the 32 passes are a loop of 128 kernel launches, 0.16 ms of GPU
 time but about 0.8 ms of launch overhead per heightmap on an H200 machine (issue 27), where one
-sort is a handful of kernels. :func:`order_statistics` therefore selects on a CPU and sorts
-elsewhere (``lax.platform_dependent``); both return the same elements.
+sort is a handful of kernels, and a few hundred values (ICP's residuals) are ranked fastest by
+comparing all pairs in one kernel. :func:`order_statistics` therefore selects on a CPU, and
+elsewhere compares all pairs or sorts (``lax.platform_dependent``); all return the same elements.
 """
 
 from __future__ import annotations
@@ -19,9 +20,14 @@ from jax import lax
 from jaxtyping import Array, Float, Int, UInt
 
 
+COMPARISON_MAX = 256
+"""On an accelerator, up to this many values are ranked by comparing all pairs, more by a sort."""
+
+
 def order_statistics(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
     """``jnp.sort(values)[ranks]``: by bisection on a CPU (:func:`order_statistics_by_bisection`),
-    by a sort on an accelerator (see the module docstring).
+    on an accelerator by comparing all pairs up to ``COMPARISON_MAX`` values
+    (:func:`order_statistics_by_comparison`) and by a sort beyond (see the module docstring).
 
     Args:
         values: (N,) floats, not NaN (infinities order as floats do).
@@ -32,11 +38,28 @@ def order_statistics(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Arr
         (R,) the values at those positions.
     """
     return lax.platform_dependent(values, jnp.asarray(ranks, jnp.int32), cpu=order_statistics_by_bisection,
-                                  default=order_statistics_by_sort)
+                                  default=_on_an_accelerator)
+
+
+def _on_an_accelerator(values: Float[Array, "N"], ranks: Int[Array, "R"]) -> Float[Array, "R"]:
+    if values.shape[0] <= COMPARISON_MAX:
+        return order_statistics_by_comparison(values, ranks)
+    return order_statistics_by_sort(values, ranks)
+
+
+def order_statistics_by_comparison(values: Float[Array, "N"],
+                                   ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
+    """``jnp.sort(values)[ranks]`` without a sort: for each rank ``r``, the largest value with at
+    most ``r`` values below it, from all N^2 comparisons in one fused reduction (what
+    :func:`order_statistics` runs on an accelerator for a few hundred values)."""
+    below = jnp.sum(values[None, :] < values[:, None], axis=1)  # (N,)
+    ranks = jnp.asarray(ranks, jnp.int32)
+    return jnp.max(jnp.where(below[None, :] <= ranks[:, None], values[None, :], -jnp.inf), axis=1)
 
 
 def order_statistics_by_sort(values: Float[Array, "N"], ranks: tuple[int, ...] | Int[Array, "R"]) -> Float[Array, "R"]:
-    """``jnp.sort(values)[ranks]`` (what :func:`order_statistics` runs on an accelerator)."""
+    """``jnp.sort(values)[ranks]`` (what :func:`order_statistics` runs on an accelerator for more
+    than ``COMPARISON_MAX`` values)."""
     return jnp.sort(values)[jnp.asarray(ranks, jnp.int32)]
 
 

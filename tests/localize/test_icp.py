@@ -167,24 +167,3 @@ def test_blocks_past_the_active_ones_are_never_read(problem):
     np.testing.assert_allclose(float(blocked.score), float(masked.score), atol=1e-5)
     assert bool(blocked.converged) == bool(masked.converged)
     assert float(cloud_rmse(points, valid, T_true, blocked.T_object_sensor)) < 0.05
-
-
-@pytest.mark.parametrize("method", ["as_this_device_runs_it", "by_bisection", "by_comparison"])
-@pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
-def test_kth_smallest_equals_the_sort(size, method):
-    """Both selections (a CPU's and an accelerator's) pick the sort's element, ties and inf included."""
-    from tactojax.localize import _icp
-
-    kth_smallest = {"as_this_device_runs_it": _icp.kth_smallest, "by_bisection": _icp.kth_smallest_by_bisection,
-                    "by_comparison": _icp.kth_smallest_by_comparison}[method]
-
-    rng = np.random.default_rng(size)
-    values = rng.normal(size=(6, size)).astype(np.float32)
-    values[1] = np.round(values[1], 1)  # ties
-    values[2, rng.integers(0, size, size // 3 + 1)] = np.inf  # invalid matches, as robust_weights marks them
-    values[3] = 0.0
-    ks = jnp.asarray(rng.integers(0, size, 6), jnp.int32)
-    expected = jnp.sort(jnp.asarray(values), axis=1)[jnp.arange(6), ks]
-    np.testing.assert_array_equal(jax.jit(jax.vmap(kth_smallest))(values, ks), expected)
-    for k in {0, size // 2, size - 1}:
-        assert kth_smallest(jnp.asarray(values[0]), jnp.int32(k)) == jnp.sort(values[0])[k]

@@ -19,8 +19,8 @@ from tactojax.shape import (ShapeModel, build_network, coordinate_bias, init_sha
                             predict, predict_batch, zero_background)
 from tactojax.shape._models import MASK_SHARPNESS_MM, SlopePoissonNet, patch_planes, pixel_patches
 from tactojax.shape._predict import network_input, raw_prediction
-from tactojax.shape._quantile import (order_statistics, order_statistics_by_bisection, order_statistics_by_sort,
-                                      quantile)
+from tactojax.shape._quantile import (order_statistics, order_statistics_by_bisection, order_statistics_by_comparison,
+                                      order_statistics_by_sort, quantile)
 
 
 # --- the reference: the replaced formulation --------------------------------------------------
@@ -194,6 +194,29 @@ def test_both_order_statistics_pick_the_same_elements():
     traced = jnp.asarray(ranks, jnp.int32)
     np.testing.assert_array_equal(jax.jit(order_statistics_by_bisection)(values, traced), by_bisection)
     np.testing.assert_array_equal(jax.jit(order_statistics)(values, traced), by_bisection)
+
+
+@pytest.mark.parametrize("method", ["as_this_device_runs_it", "by_bisection", "by_comparison", "by_sort"])
+@pytest.mark.parametrize("size", [1, 7, 128, 256, 300])
+def test_one_rank_as_data_is_the_sorts_element(size, method):
+    """ICP's trimming threshold (one rank, traced, per iteration): every selection (a CPU's and an
+    accelerator's) picks the sort's element, ties and inf included."""
+    select = {"as_this_device_runs_it": order_statistics, "by_bisection": order_statistics_by_bisection,
+              "by_comparison": order_statistics_by_comparison, "by_sort": order_statistics_by_sort}[method]
+
+    def kth_smallest(values, k):
+        return select(values, k[None])[0]
+
+    rng = np.random.default_rng(size)
+    values = rng.normal(size=(6, size)).astype(np.float32)
+    values[1] = np.round(values[1], 1)  # ties
+    values[2, rng.integers(0, size, size // 3 + 1)] = np.inf  # invalid matches, as robust_weights marks them
+    values[3] = 0.0
+    ks = jnp.asarray(rng.integers(0, size, 6), jnp.int32)
+    expected = jnp.sort(jnp.asarray(values), axis=1)[jnp.arange(6), ks]
+    np.testing.assert_array_equal(jax.jit(jax.vmap(kth_smallest))(values, ks), expected)
+    for k in {0, size // 2, size - 1}:
+        assert kth_smallest(jnp.asarray(values[0]), jnp.int32(k)) == jnp.sort(values[0])[k]
 
 
 def test_quantile_gradient_matches_the_sort():
