@@ -355,6 +355,22 @@ def facing_imprints(view: LocalizationMap, T_object_sensor: jaxlie.SE3, evidence
     return view.imprints_near(T_object_sensor, centre, count)
 
 
+def facing_imprints_of_touches(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+                               count: int) -> tuple[Int[Array, "T count"], Bool[Array, "T count"]]:
+    """:func:`facing_imprints` of every touch the belief holds at one hypothesis (reference
+    frame); the empty slots hold none (looked up in a loop over the touches held, as
+    :func:`sum_over_touches`)."""
+    slots = belief.touch_valid.shape[0]
+
+    def one(t, found):
+        nearby, valid = facing_imprints(view, T_object_reference @ take(belief.T_reference_touch, t),
+                                        take(belief.evidence, t), count)
+        return found[0].at[t].set(nearby), found[1].at[t].set(valid & belief.touch_valid[t])
+
+    return jax.lax.fori_loop(0, belief.touches, one, (jnp.zeros((slots, count), jnp.int32),
+                                                       jnp.zeros((slots, count), bool)))
+
+
 def touch_terms(view: LocalizationMap, evidence: TouchEvidence, feature: Float[Array, "F"],
                 T_object_sensor: jaxlie.SE3, settings: BeliefSettings) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """The two cues of one touch at a pose, before calibration: its geometric log-likelihood
@@ -468,12 +484,10 @@ def refine(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie
            settings: BeliefSettings) -> jaxlie.SE3:
     """Step 4: ICP of all remembered touches at once from one hypothesis (reference frame),
     each touch's points against the stored imprints around where it lands."""
-    T_touches = T_object_reference @ belief.T_reference_touch  # (T,)
-    nearby, nearby_valid = jax.vmap(lambda T, e: facing_imprints(view, T, e, settings.neighbours))(
-        T_touches, belief.evidence)
+    nearby, nearby_valid = facing_imprints_of_touches(view, belief, T_object_reference, settings.neighbours)
     used = settings.registration_points
     candidates_ = jnp.repeat(nearby, used, axis=0)  # (T * used, n)
-    candidates_valid = jnp.repeat(nearby_valid & belief.touch_valid[:, None], used, axis=0)
+    candidates_valid = jnp.repeat(nearby_valid, used, axis=0)
     points = jax.vmap(lambda T, p: T @ p)(belief.T_reference_touch, belief.evidence.contact[:, :used])
     points_valid = belief.evidence.contact_valid[:, :used] & belief.touch_valid[:, None]
     # Each touch's points a block: the empty slots are never looked up.
