@@ -85,7 +85,7 @@ def run(args) -> int:
         stop_rows += object_stop_rows
         curves.update(object_curves)
     print(format_table(["object", "policy", "grasps", "median RMSE (mm)", "symmetric (mm)", "<= 1 mm", "<= 2 mm",
-                        "<= 5 mm", "mean P(within 2 mm)", "calibration gap", "spent"], rows))
+                        "<= 5 mm", "mean P(within 2 mm)", "calibration gap, bins >= 10", "spent"], rows))
     print(f"\nstopping rule: P(within 2 mm) >= {args.stop} within {args.max_grasps} grasps")
     print(format_table(["object", "policy", "stopped", "within 2 mm of those", "mean grasps to stop"], stop_rows))
     for name, entry in payload["objects"].items():
@@ -120,7 +120,7 @@ def _summarise_object(result, obj, tactile_map, policies, args):
     tables, and its curves of the share within 2 mm against grasps (one per policy)."""
     import numpy as np
 
-    from tactojax.localize._new_grasps import calibration
+    from tactojax.localize.evaluation import calibration, calibration_gap
 
     rows, stop_rows, curves = [], [], {}
     symmetric = is_symmetric(tactile_map)
@@ -140,7 +140,7 @@ def _summarise_object(result, obj, tactile_map, policies, args):
                          summary["median_symmetric_rmse_mm"] if symmetric else "-",
                          *(f"{100 * summary['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
                          float(np.mean(result.probability[policy][:, k])),
-                         summary["calibration"]["max_gap"], f"{100 * summary['spent_share']:.0f} %"])
+                         calibration_gap(summary["calibration"]), f"{100 * summary['spent_share']:.0f} %"])
         stops[policy] = stop = stop_figures(result.probability[policy], error, args.stop)
         stop_rows.append([obj.name, policy, f"{100 * stop['stopped_share']:.0f} %",
                           "-" if stop["within_2mm_of_stopped"] is None else f"{100 * stop['within_2mm_of_stopped']:.0f} %",

@@ -58,7 +58,7 @@ def run(args) -> int:
 
     from tactojax.localize.evaluation import evaluate_localization, map_size_study
     from tactojax.localize._baselines import parse_method
-    from tactojax.localize._new_grasps import calibration
+    from tactojax.localize.evaluation import calibration, calibration_gap
     from tactojax.viz import localization_histogram_figure, map_size_figure, save_png
 
     methods = [parse_method(m).name for m in (args.methods or DEFAULT_METHODS).split(",") if m.strip()]
@@ -89,7 +89,7 @@ def run(args) -> int:
                          f"{100 * s['within_mm']['2']:.0f} %",
                          f"{100 * s['symmetric_within_2mm']:.0f} %" if symmetric else "-",
                          s.get("mean_probability_within_2mm", "-"),
-                         s["calibration"]["max_gap"] if "calibration" in s else "-"])
+                         calibration_gap(s["calibration"]) if "calibration" in s else "-"])
         title, panel = histogram_panel(tactile_map, results)
         histograms[title] = panel
         payload["objects"][tactile_map.object_id] = {"imprints": len(tactile_map), "queries": int(len(valid)),
@@ -103,10 +103,11 @@ def run(args) -> int:
             payload["objects"][tactile_map.object_id]["map_size"] = {str(f): v for f, v in sizes[tactile_map.object_id].items()}
     print(format_table(["object", "method", "median RMSE (mm)", "symmetric (mm)", "translation (mm)",
                         "rotation (deg)", "within 2 mm", "symmetric within 2 mm", "mean P(within 2 mm)",
-                        "calibration gap"], rows))
+                        "calibration gap, bins >= 10"], rows))
     if "belief" in methods:
         print("P(within 2 mm) is the belief's, up to the object's symmetry; calibration gap: the largest |predicted - "
-              "observed| over its reliability bins (observed: the symmetry-aware error within 2 mm)")
+              "observed| over its reliability bins of >= 10 beliefs (observed: the symmetry-aware error within 2 mm), "
+              "and in brackets the chance that a calibrated belief shows a gap as large")
     if sizes:
         size_rows = [[name, method, *(per[f][method] for f in sorted(per))]
                      for name, per in sizes.items() for method in next(iter(per.values()))]

@@ -15,7 +15,7 @@ def run_new_grasps(args) -> int:
     from tactojax.localize import LocalizationMap
     from tactojax.localize.evaluation import evaluate_new_grasps
     from tactojax.localize._baselines import parse_method
-    from tactojax.localize._new_grasps import calibration
+    from tactojax.localize.evaluation import calibration, calibration_gap
     from tactojax.viz import new_grasps_figure, save_png
 
     methods = [parse_method(m).name for m in (args.methods or DEFAULT_TEST_METHODS).split(",") if m.strip()]
@@ -39,11 +39,11 @@ def run_new_grasps(args) -> int:
         results = evaluate_new_grasps(view, episodes, methods, fingers=args.fingers, progress=True)
         summaries = [r.summary(symmetric=symmetric) for r in results]
         for r, s in zip(results, summaries):
-            gap = s.get("calibration", {}).get("max_gap")
             rows.append([tactile_map.object_id, r.method, r.fingers, r.grasps if r.fused else "1 (each)", s["count"], s["median_rmse_mm"],
                          s["median_symmetric_rmse_mm"] if symmetric else "-",
                          *(f"{100 * s['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
-                         s["median_translation_mm"], s["median_rotation_deg"], "-" if gap is None else gap,
+                         s["median_translation_mm"], s["median_rotation_deg"],
+                         calibration_gap(s["calibration"]) if "calibration" in s else "-",
                          s.get("mean_nll_truth", "-"),
                          f"{100 * s['coverage_90']:.0f} %" if "coverage_90" in s else "-"])
         fused = [(r, s) for r, s in zip(results, summaries) if r.fused]
@@ -62,7 +62,7 @@ def run_new_grasps(args) -> int:
             "results": summaries, "calibration": calibrations.get(tactile_map.object_id)}
     print(format_table(["object", "method", "fingers", "grasps", "count", "median RMSE (mm)", "symmetric (mm)",
                         "<= 1 mm", "<= 2 mm", "<= 5 mm", "translation (mm)", "rotation (deg)",
-                        "calibration gap", "NLL of truth", "90 % set holds truth"], rows))
+                        "calibration gap, bins >= 10", "NLL of truth", "90 % set holds truth"], rows))
     if calibrations:
         print("\nbelief calibration: predicted P(error <= 2 mm) against the observed share, per bin")
         cal_rows = [[name, f"{b['bin'][0]:.1f}-{b['bin'][1]:.1f}", b["count"],

@@ -126,6 +126,17 @@ def calibration(predicted: np.ndarray, happened: np.ndarray, bins=CALIBRATION_BI
     return out
 
 
+def calibration_gap(table: dict) -> str:
+    """The gap the calibration targets judge, for a table: the largest over the bins holding
+    ``MIN_BIN_COUNT`` or more beliefs, and in brackets the chance that a calibrated belief with
+    the same predictions shows one as large (``p``; small: miscalibrated). "-" where no bin holds
+    that many. (The largest gap over *every* bin, ``max_gap``, is set by bins of one or two
+    beliefs whenever there are some.)"""
+    if table["max_gap_binned"] is None:
+        return "-"
+    return f"{table['max_gap_binned']:.2f} (p {table['calibrated_p']:.2f})"
+
+
 def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid, symmetries: jaxlie.SE3,
             symmetry_axis, symmetry_centre):
     """RMSE over a set of touches (T,) and its symmetry-aware value (:func:`closest_copy_square`);

@@ -28,6 +28,8 @@ from tactojax.localize._identify_episodes import likely_objects as likely_object
 from tactojax.localize._identify_episodes import maps_in_play as maps_in_play
 from tactojax.localize._map import map_touch as map_touch
 from tactojax.localize._new_grasps import EpisodeErrors as EpisodeErrors
+from tactojax.localize._new_grasps import calibration as calibration
+from tactojax.localize._new_grasps import calibration_gap as calibration_gap
 from tactojax.localize._new_grasps import evaluate_new_grasps as evaluate_new_grasps
 from tactojax.localize._test_episodes import load_test_episodes as load_test_episodes
 
@@ -37,6 +39,8 @@ __all__ = [
     "LocalizationErrors",
     "TestEpisodes",
     "belief_error",
+    "calibration",
+    "calibration_gap",
     "cloud_moments",
     "episode_beliefs",
     "evaluate_identification",

@@ -12,11 +12,13 @@ def new_grasps_figure(curves: dict[str, dict], calibrations: dict[str, dict]) ->
     Args:
         curves: ``{label (object, fingers): {"grasps": [1..K], "median_mm": [...], "single": {method: median}}}``.
         calibrations: ``{object: calibration dict}`` with ``bins`` of ``predicted``/``observed``/``count``
-            (:func:`tactojax.localize.calibration`).
+            (:func:`tactojax.localize.evaluation.calibration`).
 
     Returns:
         the matplotlib figure.
     """
+    from tactojax.localize.evaluation import calibration_gap  # here: importing the figures starts no JAX
+
     figure = Figure(figsize=(10.0, 3.8))
     curve_axis, reliability_axis = figure.subplots(1, 2)
     for index, (label, curve) in enumerate(curves.items()):
@@ -36,7 +38,7 @@ def new_grasps_figure(curves: dict[str, dict], calibrations: dict[str, dict]) ->
     for name, table in calibrations.items():
         rows = [r for r in table["bins"] if r["count"]]
         reliability_axis.plot([r["predicted"] for r in rows], [r["observed"] for r in rows], marker="o",
-                              label=f"{name} (max gap {table['max_gap']:.2f})")
+                              label=f"{name} (gap, bins >= 10: {calibration_gap(table)})")
     reliability_axis.set_xlim(0, 1)
     reliability_axis.set_ylim(0, 1)
     reliability_axis.set_xlabel("predicted P(error <= 2 mm)")

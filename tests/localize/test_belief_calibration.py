@@ -113,8 +113,9 @@ def test_nothing_to_fit_is_a_clear_error():
 
 def test_reliability_tells_chance_gaps_from_miscalibration():
     """A calibrated predictor's largest bin gap is within what chance gives it; an overconfident
-    one's is not. The bins match a direct count."""
-    from tactojax.localize._new_grasps import calibration
+    one's is not. The bins match a direct count. The gap the tables print is the one over the bins
+    of >= 10 beliefs: a bin of one belief does not set it."""
+    from tactojax.localize.evaluation import calibration, calibration_gap
 
     rng = np.random.default_rng(1)
     predicted = rng.random(400)
@@ -130,4 +131,8 @@ def test_reliability_tells_chance_gaps_from_miscalibration():
         assert row["count"] == inside.sum()
         assert row["observed"] == pytest.approx(happened[inside].mean())
     few = calibration(predicted[:5], happened[:5])
-    assert few["max_gap_binned"] is None and few["calibrated_p"] is None
+    assert few["max_gap_binned"] is None and few["calibrated_p"] is None and calibration_gap(few) == "-"
+    # Twenty beliefs saying 0.1 (two right) and one saying 0.9 that was wrong: 0.9 over every bin, 0.0 over the full one.
+    lonely = calibration(np.r_[np.full(20, 0.1), 0.9], np.r_[np.arange(20) < 2, False])
+    assert lonely["max_gap"] == pytest.approx(0.9) and lonely["max_gap_binned"] == pytest.approx(0.0, abs=1e-12)
+    assert calibration_gap(lonely) == f"0.00 (p {lonely['calibrated_p']:.2f})"
