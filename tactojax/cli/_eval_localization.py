@@ -56,9 +56,8 @@ def run(args) -> int:
     import jax
     import numpy as np
 
-    from tactojax.localize.evaluation import evaluate_localization, map_size_study
+    from tactojax.localize.evaluation import calibration, calibration_gap, evaluate_localization, map_size_study
     from tactojax.localize._baselines import parse_method
-    from tactojax.localize.evaluation import calibration, calibration_gap
     from tactojax.viz import localization_histogram_figure, map_size_figure, save_png
 
     methods = [parse_method(m).name for m in (args.methods or DEFAULT_METHODS).split(",") if m.strip()]

@@ -11,11 +11,9 @@ def run_new_grasps(args) -> int:
 
     from tactojax.cli._eval_localization import DEFAULT_TEST_METHODS
     from tactojax.io import resolve_shape_model, stored_surface
-    from tactojax.localize.evaluation import load_test_episodes
     from tactojax.localize import LocalizationMap
-    from tactojax.localize.evaluation import evaluate_new_grasps
+    from tactojax.localize.evaluation import calibration, calibration_gap, evaluate_new_grasps, load_test_episodes
     from tactojax.localize._baselines import parse_method
-    from tactojax.localize.evaluation import calibration, calibration_gap
     from tactojax.viz import new_grasps_figure, save_png
 
     methods = [parse_method(m).name for m in (args.methods or DEFAULT_TEST_METHODS).split(",") if m.strip()]
