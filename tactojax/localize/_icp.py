@@ -176,10 +176,9 @@ def icp(
         :class:`PoseEstimate` (``imprint_index`` -1: the caller knows where it started).
     """
     per_point = candidates.ndim == 2
-    if per_point and settings.association == "nearest":
-        raise ValueError("per-point candidates need the projective association")
-    if active_blocks is not None and settings.association == "nearest":
-        raise ValueError("blocks of points need the projective association")
+    if settings.association == "nearest" and (per_point or active_blocks is not None):
+        raise ValueError("per-point candidates and blocks of points need the projective association "
+                         "(the nearest association registers every point against one shared set of imprints)")
     T_sensor_candidate = candidate_poses(view, candidates)
     # Shared candidates: their surfaces copied once (one gather a lookup instead of two).
     # Per-point ones are looked up in the map itself (a copy would be P x N heightmaps).

@@ -167,3 +167,15 @@ def test_blocks_past_the_active_ones_are_never_read(problem):
     np.testing.assert_allclose(float(blocked.score), float(masked.score), atol=1e-5)
     assert bool(blocked.converged) == bool(masked.converged)
     assert float(cloud_rmse(points, valid, T_true, blocked.T_object_sensor)) < 0.05
+
+
+def test_the_nearest_association_refuses_per_point_candidates_and_blocks(problem):
+    """The nearest association registers every point against one shared set of imprints: per-point
+    candidates or blocks of points are a clear error, not a silently wrong fit."""
+    view, T_true, points, valid = problem
+    settings = IcpSettings(iterations=2, association="nearest")
+    rows = jnp.broadcast_to(CANDIDATES, (points.shape[0], 8))
+    with pytest.raises(ValueError, match="need the projective association"):
+        icp(view, rows, jnp.ones(rows.shape, bool), points, valid, T_true, settings)
+    with pytest.raises(ValueError, match="need the projective association"):
+        icp(view, CANDIDATES, jnp.ones(8, bool), points, valid, T_true, settings, blocks=1, active_blocks=jnp.int32(1))
