@@ -13,18 +13,24 @@ def add_parser(commands) -> None:
         description="Run the pose belief over calibration grasps of each map's object (episodes of grasps "
                     "at known poses: `tactojax simulate OBJECT --protocol grasps --seed S`, with a seed of "
                     "their own, never the test set's) and fit its temperature, appearance weight and "
-                    "fusion exponent (the appearance weight relative to the temperature by the likelihood of the "
-                    "true pose, then the temperature and exponent so that its P(within 2 mm) is calibrated, then "
-                    "the probability, by touch count, that its search found the true pose's mode at all); the "
-                    "fit is stored in the map's header, where every command that runs the belief reads it.")
+                    "fusion exponent (the temperature and exponent so that its P(within 2 mm) is calibrated, then "
+                    "the probability, by touch count, that its search found the true pose's mode at all; the "
+                    "appearance weight relative to the temperature, which decides the poses, stays the default's "
+                    "unless --fit-shape or the maps' features come from another encoder); the fit is stored in the "
+                    "map's header, where every command that runs the belief reads it.")
     parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (the fit is written into their headers; nothing else changes)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
                         help="new-grasps datasets holding each map's object (`--protocol grasps`)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=2,
                         help="fingers fused per grasp, as the robot will (default 2)")
-    parser.add_argument("--rounds", type=int, default=2,
-                        help="fits, each running the belief with the previous one's scales (they decide which "
-                             "hypotheses it keeps; default 2)")
+    parser.add_argument("--fit-shape", action="store_true",
+                        help="also fit the appearance weight relative to the temperature, by the likelihood of the "
+                             "true pose (it decides which pose wins: on the catalog objects' 32 calibration episodes "
+                             "it lost episodes; always fit for features of an encoder other than the default's)")
+    parser.add_argument("--rounds", type=int, default=None,
+                        help="fits, each running the belief with the previous one's scales (with --fit-shape they "
+                             "decide which hypotheses it keeps; default 2 then, else 1: the shape kept, a second "
+                             "round would find the same hypotheses)")
     parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model for the images (default {DEFAULT_MODEL})")
     add_encoder_argument(parser)
     parser.add_argument("--json", metavar="PATH", help="write the fits as JSON")
@@ -48,15 +54,18 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
-    from tactojax.io import (expand_catalogs, resolve_shape_model, stored_surface, tactile_map_metadata,
-                             update_tactile_map_metadata)
-    from tactojax.localize import LocalizationMap, calibration_to_json, fit_calibration
+    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, stored_surface,
+                             tactile_map_metadata, update_tactile_map_metadata)
+    from tactojax.localize import BeliefCalibration, LocalizationMap, calibration_to_json, fit_calibration
     from tactojax.localize.evaluation import record_beliefs
 
     args.maps = expand_catalogs(args.maps)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
-    if args.rounds < 1:
-        raise ValueError(f"--rounds must be at least 1, got {args.rounds}")
+    # The default's shape belongs to its encoder's features: the features of another need their own.
+    fit_shape = args.fit_shape or maps_encoder_name(args.maps, args.encoder) != DEFAULT_ENCODER
+    rounds = args.rounds if args.rounds is not None else (2 if fit_shape else 1)
+    if rounds < 1:
+        raise ValueError(f"--rounds must be at least 1, got {rounds}")
     model = resolve_shape_model(args.model)
     rows, payload = [], {}
     for path, tactile_map in zip(args.maps, maps):
@@ -65,11 +74,11 @@ def run(args) -> int:
             raise ValueError(f"--fingers {args.fingers}: the calibration grasps of {tactile_map.object_id} "
                              f"record {recorded} finger per grasp (simulate them with --fingers 2)")
         view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(path))  # the first round: uncalibrated
-        for _ in range(args.rounds):
+        for _ in range(rounds):
             records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
-            calibration, report = fit_calibration(records)
+            calibration, report = fit_calibration(records, None if fit_shape else BeliefCalibration.default())
             view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
-        report.update(encoder=maps_encoder_name([path], args.encoder), fingers=args.fingers,
+        report.update(encoder=maps_encoder_name([path], args.encoder), fingers=args.fingers, shape_fit=fit_shape,
                       episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report

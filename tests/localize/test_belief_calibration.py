@@ -52,6 +52,26 @@ def test_fit_recovers_the_weight_of_the_appearance():
     assert truth_log_loss(truth_probability(records, without)) > report["truth_loss"] + 0.1
 
 
+def test_a_kept_shape_fits_the_sharpness_and_never_moves_the_best_hypothesis():
+    """With the shape given, the fit keeps its appearance-to-temperature ratio (so every belief's
+    best hypothesis stays the one the given shape picks) and still finds the temperature that
+    generated what happened."""
+    from tactojax.localize._calibrate import _posterior
+
+    records = _synthetic_records(np.random.default_rng(6), 0.02, 0.5, appearance=1.0)
+    shape = BeliefCalibration(temperature=np.float32(0.5), appearance=np.float32(0.5 / 0.02),
+                              fusion_exponent=np.float32(0.0))  # the true ratio, far too sharp
+    fitted, _ = fit_calibration(records, shape)
+    assert float(fitted.appearance) / float(fitted.temperature) == pytest.approx(1.0 / 0.02, rel=1e-5)
+    assert float(fitted.temperature) == pytest.approx(0.02, rel=0.3)
+    np.testing.assert_array_equal(_posterior(records, fitted)[1], _posterior(records, shape)[1])
+    # A wrong shape is kept too: the best hypotheses stay its own, only the sharpness is fit.
+    wrong = shape.replace(appearance=np.float32(0.0))
+    kept, _ = fit_calibration(records, wrong)
+    assert float(kept.appearance) == 0.0
+    np.testing.assert_array_equal(_posterior(records, kept)[1], _posterior(records, wrong)[1])
+
+
 def test_an_overconfident_temperature_is_worse_than_the_fit():
     records = _synthetic_records(np.random.default_rng(2), 0.02, 0.0)
     fitted, report = fit_calibration(records)
