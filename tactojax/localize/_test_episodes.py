@@ -3,6 +3,7 @@ network and the encoder run on the recorded images, as a robot's would."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import jax
@@ -50,15 +51,26 @@ def load_test_episodes(path: str | Path, object_id: str, model, encoder, *, prog
 
     pixels = data["image"].astype(np.float32) / 255.0
     heightmaps, masks = predict_batch(model, pixels)
-    masks = jax.vmap(lambda p, m: observed_contact(p, model.background, m, model.mm_per_px))(jnp.asarray(pixels), masks)
+    masks, T_object_sensor, mean, covariance = _observed_and_true(
+        jnp.asarray(pixels), masks, model.background, jnp.asarray(data["heightmap"]), jnp.asarray(data["mask"]),
+        jaxlie.SE3(jnp.asarray(data["T_world_object"])), jaxlie.SE3(jnp.asarray(data["T_world_sensor"])),
+        mm_per_px=model.mm_per_px)
     features = encode_images(encoder, data["image"], progress=progress)
-    T_object_sensor = (jaxlie.SE3(jnp.asarray(data["T_world_object"])).inverse()
-                       @ jaxlie.SE3(jnp.asarray(data["T_world_sensor"])))
-    points = jax.vmap(lambda h: heightmap_to_points(h, model.mm_per_px).reshape(-1, 3))(jnp.asarray(data["heightmap"]))
-    mean, covariance = jax.vmap(cloud_moments)(points, jnp.asarray(data["mask"]).reshape(len(points), -1))
     episodes = TestEpisodes(
         heightmaps=jnp.asarray(shaped(heightmaps)), masks=jnp.asarray(shaped(masks)),
         features=jnp.asarray(shaped(features)), openings=jnp.asarray(shaped(data["opening_mm"])[:, :, 0]),
         T_object_sensor=jaxlie.SE3(jnp.asarray(shaped(T_object_sensor.wxyz_xyz))),
         cloud_mean=jnp.asarray(shaped(mean)), cloud_covariance=jnp.asarray(shaped(covariance)))
     return episodes, fingers
+
+
+@functools.partial(jax.jit, static_argnames=("mm_per_px",))
+def _observed_and_true(pixels, predicted_masks, background, true_heightmaps, true_masks, T_world_object: jaxlie.SE3,
+                       T_world_sensor: jaxlie.SE3, mm_per_px: float):
+    """(N,) touches: the predicted masks kept where the image changed (:func:`observed_contact`),
+    the sensors' true poses in the object frame, and the true contact clouds' moments; one
+    program (eagerly, each of its dozens of operations compiled apart, per test-set size)."""
+    masks = jax.vmap(lambda p, m: observed_contact(p, background, m, mm_per_px))(pixels, predicted_masks)
+    points = jax.vmap(lambda h: heightmap_to_points(h, mm_per_px).reshape(-1, 3))(true_heightmaps)
+    mean, covariance = jax.vmap(cloud_moments)(points, true_masks.reshape(len(points), -1))
+    return masks, T_world_object.inverse() @ T_world_sensor, mean, covariance
