@@ -14,7 +14,10 @@ contact mask. This script swaps in exact data one part at a time and runs the sa
 
 When exact data lifts the share within 2 mm, the data (local shape, mapping) is the limit; when
 exact data still misses, the touches do not carry the information or the search does not find
-it. Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
+it. Then, for every episode still more than 2 mm off after all its grasps (the map's surface,
+predicted touches), where its touches land on the map at the true pose and at the belief's best:
+how many contact points of its worst touch fall where the map knows no surface, and how well
+the others fit (a touch reaching past what the map stored is scored as floating in space). Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
 catalog's). Needs a catalog object (its true solid: a primitive's signed distance, or a mesh's
 from trimesh). The map's stored belief calibration is used.
 
@@ -32,7 +35,7 @@ import numpy as np
 
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
 from tactojax.localize import LocalizationMap, MapSurface
-from tactojax.localize.evaluation import evaluate_new_grasps, load_test_episodes
+from tactojax.localize.evaluation import episode_beliefs, evaluate_new_grasps, load_test_episodes
 from tactojax.objects import get_object
 
 try:  # run as ``python benchmarks/belief_limits.py`` or as a module
@@ -110,6 +113,35 @@ def belief_rows(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
     return rows
 
 
+def failures(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
+    """Every episode more than 2 mm off after all its grasps: per touch, the contact points that
+    land where the map knows no surface, at the true pose and at the belief's best; for the touch
+    with the most such points at the truth, the median distance of its other points to the surface."""
+    symmetric = view.symmetries.wxyz_xyz.shape[0] > 1
+    last = [r for r in evaluate_new_grasps(view, episodes, methods=("belief",), fingers=fingers,
+                                           single_touches=False) if r.fused][-1]
+    error = last.symmetric_rmse if symmetric else last.rmse
+    beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=False)  # (E, N): the last holds every touch
+    rows = []
+    for e in np.flatnonzero(error > 2.0):
+        belief = jax.tree.map(lambda x: x[e, -1], beliefs)
+        # The test set's sensor poses are in the object frame: the reference's pose is the truth.
+        landing = {}
+        for name, T_object_reference in (("truth", belief.T_world_reference), ("best", belief.best)):
+            points = jax.vmap(lambda T, p: T @ p)(T_object_reference @ belief.T_reference_touch, belief.evidence.contact)
+            distance, known = (np.asarray(x) for x in view.surface.signed_distance(points))
+            valid = np.asarray(belief.evidence.contact_valid & belief.touch_valid[:, None])
+            landing[name] = (np.sum(valid & ~known, axis=1), np.where(valid & known, np.abs(distance), np.nan))
+        worst = int(np.argmax(landing["truth"][0]))
+        fit = landing["truth"][1][worst]
+        rows.append({"episode": int(e), "error_mm": float(error[e]),
+                     "worst_touch_unknown_at_truth": int(landing["truth"][0][worst]),
+                     "same_touch_unknown_at_best": int(landing["best"][0][worst]),
+                     "worst_touch_known_fit_mm": float(np.nanmedian(fit)) if np.isfinite(fit).any() else None,
+                     "contact_points_per_touch": int(belief.evidence.contact_valid.shape[1])})
+    return rows
+
+
 def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_map_arguments(parser)
@@ -148,6 +180,15 @@ def main() -> None:
         ["surface", "touches"] + [f"{g} grasp{'s' * (g > 1)}: within 2 mm, median" for g in grasps],
         [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
                                          for row in r["per_grasps"]] for r in results]))
+    failed = failures(view, episodes, args.fingers)
+    print(f"episodes more than 2 mm off after {grasps[-1]} grasps (the map's surface, predicted touches): {len(failed)}")
+    print(format_table(["episode", "error (mm)", "worst touch: points on unknown surface at the truth",
+                        "the same touch at the belief's best", "its other points' median |distance| (mm)"],
+                       [[r["episode"], f"{r['error_mm']:.2f}",
+                         f"{r['worst_touch_unknown_at_truth']} of {r['contact_points_per_touch']}",
+                         r["same_touch_unknown_at_best"],
+                         "-" if r["worst_touch_known_fit_mm"] is None else f"{r['worst_touch_known_fit_mm']:.2f}"]
+                        for r in failed]))
     share = coverage(distance, known)
     print(f"{name}: {episodes.openings.shape[0]} episodes x {args.fingers} finger(s); calibration: "
           f"{'stored' if calibration is not None else 'none (default)'}; the map knows {100 * share:.0f} % of the "
@@ -155,7 +196,7 @@ def main() -> None:
     if args.json:
         write_json(args.json, {"object": name, "map": (map_paths(args) or [name])[0], "test": str(test),
                                "fingers": args.fingers, "episodes": int(episodes.openings.shape[0]),
-                               "coverage": share, "results": results, "seed": args.seed, "machine": machine_info()})
+                               "coverage": share, "results": results, "failures": failed, "seed": args.seed, "machine": machine_info()})
         print(f"wrote {args.json}")
 
 
