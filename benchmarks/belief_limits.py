@@ -17,7 +17,9 @@ exact data still misses, the touches do not carry the information or the search 
 it. Then, for every episode still more than 2 mm off after all its grasps (the map's surface,
 predicted touches), where its touches land on the map at the true pose and at the belief's best:
 how many contact points of its worst touch fall where the map knows no surface, and how well
-the others fit (a touch reaching past what the map stored is scored as floating in space). Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
+the others fit (a touch reaching past what the map stored is scored as floating in space).
+
+Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
 catalog's). Needs a catalog object (its true solid: a primitive's signed distance, or a mesh's
 from trimesh). The map's stored belief calibration is used.
 
@@ -128,7 +130,8 @@ def failures(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
         # The test set's sensor poses are in the object frame: the reference's pose is the truth.
         landing = {}
         for name, T_object_reference in (("truth", belief.T_world_reference), ("best", belief.best)):
-            points = jax.vmap(lambda T, p: T @ p)(T_object_reference @ belief.T_reference_touch, belief.evidence.contact)
+            T_object_touch = T_object_reference @ belief.T_reference_touch  # (T,)
+            points = jax.vmap(lambda T, p: T @ p)(T_object_touch, belief.evidence.contact)
             distance, known = (np.asarray(x) for x in view.surface.signed_distance(points))
             valid = np.asarray(belief.evidence.contact_valid & belief.touch_valid[:, None])
             landing[name] = (np.sum(valid & ~known, axis=1), np.where(valid & known, np.abs(distance), np.nan))
@@ -181,7 +184,8 @@ def main() -> None:
         [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
                                          for row in r["per_grasps"]] for r in results]))
     failed = failures(view, episodes, args.fingers)
-    print(f"episodes more than 2 mm off after {grasps[-1]} grasps (the map's surface, predicted touches): {len(failed)}")
+    print(f"episodes more than 2 mm off after {grasps[-1]} grasps (the map's surface, predicted touches): "
+          f"{len(failed)}")
     print(format_table(["episode", "error (mm)", "worst touch: points on unknown surface at the truth",
                         "the same touch at the belief's best", "its other points' median |distance| (mm)"],
                        [[r["episode"], f"{r['error_mm']:.2f}",
@@ -196,7 +200,8 @@ def main() -> None:
     if args.json:
         write_json(args.json, {"object": name, "map": (map_paths(args) or [name])[0], "test": str(test),
                                "fingers": args.fingers, "episodes": int(episodes.openings.shape[0]),
-                               "coverage": share, "results": results, "failures": failed, "seed": args.seed, "machine": machine_info()})
+                               "coverage": share, "results": results, "failures": failed, "seed": args.seed,
+                               "machine": machine_info()})
         print(f"wrote {args.json}")
 
 

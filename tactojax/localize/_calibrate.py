@@ -238,7 +238,8 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
         raise ValueError("no calibration touch produced a hypothesis: the calibration grasps do not touch the map")
     records = jax.tree.map(lambda x: x[usable], records)
     if shape is None:
-        shape = min((_scales(*scales) for scales in itertools.product(TEMPERATURES, APPEARANCE_WEIGHTS, FUSION_EXPONENTS)),
+        grid = itertools.product(TEMPERATURES, APPEARANCE_WEIGHTS, FUSION_EXPONENTS)
+        shape = min((_scales(*scales) for scales in grid),
                     key=lambda scales: truth_log_loss(truth_probability(records, scales)))
     ratio = float(shape.appearance) / float(shape.temperature)
     fitted = min((_scales(temperature, ratio * temperature, exponent)
