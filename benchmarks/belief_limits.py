@@ -102,8 +102,9 @@ def exact_touches(episodes, test, object_id: str):
                             masks=jnp.asarray(np.asarray(truth["mask"], bool).reshape(shape)))
 
 
-def belief_rows(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
-    """Per number of fused grasps: the share within 2 mm and the median error (symmetry-aware)."""
+def belief_rows(view: LocalizationMap, episodes, fingers: int) -> tuple[list[dict], np.ndarray]:
+    """Per number of fused grasps: the share within 2 mm and the median error (symmetry-aware);
+    and (E,) every episode's error after all its grasps."""
     symmetric = view.symmetries.wxyz_xyz.shape[0] > 1
     rows = []
     for result in evaluate_new_grasps(view, episodes, methods=("belief",), fingers=fingers):
@@ -112,17 +113,14 @@ def belief_rows(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
         error = result.symmetric_rmse if symmetric else result.rmse
         rows.append({"grasps": result.grasps, "within_2mm": float(np.mean(error <= 2.0)),
                      "median_rmse_mm": float(np.median(error)), "mean_p_within_2mm": float(np.mean(result.probability))})
-    return rows
+    return rows, error
 
 
-def failures(view: LocalizationMap, episodes, fingers: int) -> list[dict]:
-    """Every episode more than 2 mm off after all its grasps: per touch, the contact points that
-    land where the map knows no surface, at the true pose and at the belief's best; for the touch
-    with the most such points at the truth, the median distance of its other points to the surface."""
-    symmetric = view.symmetries.wxyz_xyz.shape[0] > 1
-    last = [r for r in evaluate_new_grasps(view, episodes, methods=("belief",), fingers=fingers,
-                                           single_touches=False) if r.fused][-1]
-    error = last.symmetric_rmse if symmetric else last.rmse
+def failures(view: LocalizationMap, episodes, fingers: int, error: np.ndarray) -> list[dict]:
+    """Every episode more than 2 mm off after all its grasps (``error``: (E,) from
+    :func:`belief_rows` on the same map and episodes): per touch, the contact points that land
+    where the map knows no surface, at the true pose and at the belief's best; for the touch with
+    the most such points at the truth, the median distance of its other points to the surface."""
     beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=False)  # (E, N): the last holds every touch
     rows = []
     for e in np.flatnonzero(error > 2.0):
@@ -173,17 +171,17 @@ def main() -> None:
     cases = {("map", "predicted"): (view, episodes), ("true, map's cells", "predicted"): (covered_view, episodes),
              ("true", "predicted"): (exact_view, episodes), ("map", "exact"): (view, exact_episodes),
              ("true", "exact"): (exact_view, exact_episodes)}
-    results = []
+    results, errors = [], {}
     for (surface, touches), (case_view, case_episodes) in cases.items():
         print(f"surface: {surface}, touches: {touches} ...", flush=True)
-        results.append({"surface": surface, "touches": touches,
-                        "per_grasps": belief_rows(case_view, case_episodes, args.fingers)})
+        rows, errors[surface, touches] = belief_rows(case_view, case_episodes, args.fingers)
+        results.append({"surface": surface, "touches": touches, "per_grasps": rows})
     grasps = [row["grasps"] for row in results[0]["per_grasps"]]
     print(format_table(
         ["surface", "touches"] + [f"{g} grasp{'s' * (g > 1)}: within 2 mm, median" for g in grasps],
         [[r["surface"], r["touches"]] + [f"{100 * row['within_2mm']:.0f} %, {row['median_rmse_mm']:.2f} mm"
                                          for row in r["per_grasps"]] for r in results]))
-    failed = failures(view, episodes, args.fingers)
+    failed = failures(view, episodes, args.fingers, errors["map", "predicted"])
     print(f"episodes more than 2 mm off after {grasps[-1]} grasps (the map's surface, predicted touches): "
           f"{len(failed)}")
     print(format_table(["episode", "error (mm)", "worst touch: points on unknown surface at the truth",
