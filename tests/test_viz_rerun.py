@@ -157,6 +157,7 @@ def test_view_command_saves_a_recording(tmp_path, cylinder_map, mapping_dataset,
     assert "no estimates file" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a live localizer for the gum box map compiles (~20 s); the in-process test above covers the viewer
 def test_localize_live_streams_its_estimates_to_a_recording(tmp_path, gum_box_map, lookup_model, tiny_encoder_path,
                                                            capsys):
     save_tactile_map(tmp_path / "gum_box.npz", gum_box_map)

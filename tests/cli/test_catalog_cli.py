@@ -12,6 +12,7 @@ from tactojax.io import (catalog_maps, encoder_label, load_tactile_map, maps_enc
 from tactojax.objects import get_object
 
 
+@pytest.mark.slow  # simulates and maps two objects, then runs four commands on them (~16 s)
 def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_encoder_path, tmp_path, capsys):
     model = save_shape_model(tmp_path / "lookup.msgpack", lookup_model)
     out = tmp_path / "catalog"

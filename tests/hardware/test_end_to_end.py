@@ -45,6 +45,7 @@ def test_recording_matches_the_simulator_run_directly(recording, small_spec, tmp
     assert recorded["image"].std(axis=0).max() > 0
 
 
+@pytest.mark.slow  # compiles a live localizer for the recorded map (~15 s); tests/localize/test_localizer.py runs fuse
 def test_a_new_grasp_is_localized_in_the_recorded_map(recording, small_spec, lookup_model, tiny_encoder_path):
     """A grasp off the mapping grid, through the cell's camera, gripper and pose feed: the
     belief puts the box where the scene holds it."""
