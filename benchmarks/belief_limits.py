@@ -118,9 +118,10 @@ def belief_rows(view: LocalizationMap, episodes, fingers: int) -> tuple[list[dic
 
 def failures(view: LocalizationMap, episodes, fingers: int, error: np.ndarray) -> list[dict]:
     """Every episode more than 2 mm off after all its grasps (``error``: (E,) from
-    :func:`belief_rows` on the same map and episodes): per touch, the contact points that land
-    where the map knows no surface, at the true pose and at the belief's best; for the touch with
-    the most such points at the truth, the median distance of its other points to the surface."""
+    :func:`belief_rows` on the same map and episodes), one row each, for its worst touch (the one
+    with the most contact points where the map knows no surface at the true pose): how many land
+    there at the true pose and at the belief's best, and the median distance of its other points
+    to the surface at the true pose."""
     beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=False)  # (E, N): the last holds every touch
     rows = []
     for e in np.flatnonzero(error > 2.0):
