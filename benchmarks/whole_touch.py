@@ -44,13 +44,12 @@ from tactojax.localize import (
     BeliefSettings,
     LocalizationMap,
     Localizer,
-    MapLibrary,
     Touch,
     empty_belief,
-    identify,
     update_belief,
 )
-from tactojax.localize.baselines import MAX_OPENING_DIFFERENCE_MM, POINTS_PER_TOUCH, IcpSettings, localize_baseline
+from tactojax.localize.baselines import (MAX_OPENING_DIFFERENCE_MM, POINTS_PER_TOUCH, IcpSettings, MapLibrary, identify,
+                                        localize_baseline)
 from tactojax.mapping import observed_contact
 from tactojax.shape import coordinate_bias, predict
 from tactojax.simulate import MappingProtocol

@@ -246,8 +246,8 @@ def _run_baseline(args, method, maps, image_path, opening, observed) -> int:
     import numpy as np
 
     from tactojax.cli._belief import position_and_angles, wxyz_xyz
-    from tactojax.localize import LocalizationMap, MapLibrary, Touch, identify
-    from tactojax.localize.baselines import localize_baseline
+    from tactojax.localize import LocalizationMap, Touch
+    from tactojax.localize.baselines import MapLibrary, identify, localize_baseline
 
     heightmap, mask, feature = observed
     chosen, similarities = identify(MapLibrary.from_maps(maps), feature, jnp.float32(opening))

@@ -5,7 +5,8 @@ object (with their sensor poses, from the robot's kinematics) into a :class:`Pos
 where it is, with a calibrated P(within 2 mm); :class:`Localizer` does the same from raw
 camera frames at control-loop rate, over several objects, and :class:`Tracker` follows the
 object between frames from there. The paper's one-touch methods (``random``, ``cti``,
-``cti-icp-N``) remain as baselines (:mod:`tactojax.localize.baselines`). The evaluation protocols
+``cti-icp-N``, and identification by the closest imprint) remain as baselines
+(:mod:`tactojax.localize.baselines`). The evaluation protocols
 and metrics are in :mod:`tactojax.localize.evaluation`, and the choice of the next grasp in
 :mod:`tactojax.localize.active`.
 
@@ -28,9 +29,6 @@ from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
 from tactojax.localize._calibrate import calibration_from_json as calibration_from_json
 from tactojax.localize._calibrate import calibration_to_json as calibration_to_json
 from tactojax.localize._calibrate import fit_calibration as fit_calibration
-from tactojax.localize._identify import IdentificationResult as IdentificationResult
-from tactojax.localize._identify import identify as identify
-from tactojax.localize._identify import MapLibrary as MapLibrary
 from tactojax.localize._identify_episodes import shared_calibration as shared_calibration
 from tactojax.localize._localize import localize as localize
 from tactojax.localize._localizer import LiveEstimate as LiveEstimate
@@ -52,12 +50,10 @@ __all__ = [
     "BeliefCalibration",
     "BeliefDigest",
     "BeliefSettings",
-    "IdentificationResult",
     "LiveEstimate",
     "LiveSettings",
     "LocalizationMap",
     "Localizer",
-    "MapLibrary",
     "MapSurface",
     "PoseBelief",
     "StackedMaps",
@@ -71,7 +67,6 @@ __all__ = [
     "calibration_to_json",
     "empty_belief",
     "fit_calibration",
-    "identify",
     "localize",
     "shared_calibration",
     "touch_from_image",
@@ -82,9 +77,11 @@ _MOVED = {
     "ActiveSettings": "tactojax.localize.active",
     "EpisodeErrors": "tactojax.localize.evaluation",
     "GraspRanking": "tactojax.localize.active",
+    "IdentificationResult": "tactojax.localize.evaluation",
     "IcpSettings": "tactojax.localize.baselines",
     "LocalizationErrors": "tactojax.localize.evaluation",
     "MAX_OPENING_DIFFERENCE_MM": "tactojax.localize.baselines",
+    "MapLibrary": "tactojax.localize.baselines",
     "MarchingGrid": "tactojax.localize.active",
     "PAPER_METHODS": "tactojax.localize.baselines",
     "POINTS_PER_TOUCH": "tactojax.localize.baselines",
@@ -100,6 +97,7 @@ _MOVED = {
     "evaluate_identification": "tactojax.localize.evaluation",
     "evaluate_localization": "tactojax.localize.evaluation",
     "evaluate_new_grasps": "tactojax.localize.evaluation",
+    "identify": "tactojax.localize.baselines",
     "identify_episodes": "tactojax.localize.evaluation",
     "load_test_episodes": "tactojax.localize.evaluation",
     "localize_baseline": "tactojax.localize.baselines",

@@ -22,6 +22,7 @@ from tactojax.localize._evaluate import evaluate_localization as evaluate_locali
 from tactojax.localize._evaluate import map_size_study as map_size_study
 from tactojax.localize._evaluate import moment_rmse as moment_rmse
 from tactojax.localize._evaluate import oracle_imprints as oracle_imprints
+from tactojax.localize._identify import IdentificationResult as IdentificationResult
 from tactojax.localize._identify import evaluate_identification as evaluate_identification
 from tactojax.localize._identify_episodes import identify_episodes as identify_episodes
 from tactojax.localize._identify_episodes import likely_objects as likely_objects
@@ -35,6 +36,7 @@ from tactojax.localize._test_episodes import load_test_episodes as load_test_epi
 
 __all__ = [
     "EpisodeErrors",
+    "IdentificationResult",
     "LEAVE_ONE_OUT_GRID",
     "LocalizationErrors",
     "TestEpisodes",
