@@ -15,8 +15,8 @@ updated the belief), the compile time at start-up, the recompilations (counted f
 frame: must be 0), and after each grasp g = 1..G the error of that frame's sensor pose against
 the simulator's truth (the paper's RMSE of the touch's true contact cloud, up to the object's
 symmetry; median and share within 2 mm) beside the belief's mean P(within 2 mm). The reference in
-the same run: the same grasps through the stage-by-stage API (``predict``, ``encode_image``,
-``localize`` continuing the episode's belief), its time per grasp and its errors (the same
+the same run: the same grasps through the stage-by-stage API (``touch_from_image`` for every
+finger, ``localize`` continuing the episode's belief), its time per grasp and its errors (the same
 belief: the same numbers up to floating point).
 
     python benchmarks/live.py --json live.json
@@ -43,15 +43,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tactojax import CompilationCounter
-from tactojax.features import encode_image
 from tactojax.geometry import opposite_sensor_pose, pixel_grid, sensor_pose
 from tactojax.hardware import LiveStatistics, OpenCVCamera, live_estimates, write_video
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import BeliefSettings, LiveSettings, LocalizationMap, Localizer, Touch, localize
-from tactojax.mapping import observed_contact
+from tactojax.localize import BeliefSettings, LiveSettings, LocalizationMap, Localizer, localize, touch_from_image
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
-from tactojax.shape import predict
 
 try:  # run as ``python benchmarks/live.py`` or as a module
     from benchmarks._common import (add_common_arguments, add_map_arguments, format_table, load_maps, machine_info,
@@ -265,17 +262,8 @@ def grasp_errors(beliefs: dict, records: dict, shape, truth_of) -> tuple[np.ndar
 
 
 def stage_by_stage(args, view, model, encoder, settings, records, opposite, shape, truth_of) -> dict:
-    """The reference: the same grasps through ``predict``, ``encode_image`` and ``localize``
-    (continuing each episode's belief), timed per grasp."""
-    @jax.jit
-    def observe(image):
-        pixels = image.astype(jnp.float32) / 255.0
-        heightmap, mask = predict(model, pixels)
-        return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
-
-    def observe_touch(image, opening):
-        heightmap, mask = observe(image)
-        return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=opening)
+    """The reference: the same grasps through ``touch_from_image`` and ``localize`` (continuing
+    each episode's belief), timed per grasp."""
 
     episodes, grasps = shape
     beliefs, seconds, skipped = {}, [], 0
@@ -287,9 +275,10 @@ def stage_by_stage(args, view, model, encoder, settings, records, opposite, shap
             opening = jnp.float32(records["opening_mm"][t])
             T_world_gripper = jaxlie.SE3(jnp.asarray(records["T_world_gripper"][t], jnp.float32))
             T_world_sensor = sensor_pose(T_world_gripper, opening)
-            touches, T_world_touches = [observe_touch(records["image"][t], opening)], [T_world_sensor]
+            touches = [touch_from_image(model, encoder, records["image"][t], float(opening))]
+            T_world_touches = [T_world_sensor]
             if args.fingers == 2:
-                touches.append(observe_touch(opposite["image"][t], opening))
+                touches.append(touch_from_image(model, encoder, opposite["image"][t], float(opening)))
                 T_world_touches.append(opposite_sensor_pose(T_world_gripper, opening))
             try:
                 belief = jax.block_until_ready(localize(view, touches, T_world_touches, belief=belief,

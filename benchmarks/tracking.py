@@ -43,15 +43,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from tactojax import CompilationCounter
-from tactojax.features import encode_images
 from tactojax.geometry import sensor_pose
 from tactojax.io import open_dataset, read_test_grasps, resolve_encoder, resolve_shape_model
-from tactojax.localize import LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize
+from tactojax.localize import (LiveSettings, LocalizationMap, Localizer, Touch, Tracker, TrackingSettings, localize,
+                               touch_from_image)
 from tactojax.localize.evaluation import load_test_episodes
-from tactojax.mapping import observed_contact
 from tactojax.objects import get_object
 from tactojax.sensor import gelslim
-from tactojax.shape import predict
 from tactojax.simulate import GraspsProtocol, SlipProtocol, simulate_to_dataset
 
 try:  # run as ``python benchmarks/tracking.py`` or as a module
@@ -111,12 +109,6 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
         episodes_at[turn] = [episodes, placement, list(range(len(placement)))]
     view = LocalizationMap.from_tactile_map(tactile_map)  # the catalog object's symmetries
 
-    @jax.jit
-    def observe(image):
-        pixels = image.astype(jnp.float32) / 255.0
-        heightmap, mask = predict(model, pixels)
-        return heightmap, observed_contact(pixels, model.background, mask, model.mm_per_px)
-
     starts, confidence = {}, {}
     for sequence, row in first.items():
         if turn_of[sequence] not in episodes_at:
@@ -132,10 +124,7 @@ def belief_starts(work: Path, name: str, data: dict[str, np.ndarray], tactile_ma
                                      feature=episodes.features[e, g, f], opening=episodes.openings[e, g]))
                 poses.append(jax.tree.map(lambda x: x[e, g, f], episodes.T_object_sensor))
         T_first = jaxlie.SE3(jnp.asarray(data["T_object_sensor"][row]))  # the kinematics, relative to the episode
-        heightmap, mask = observe(data["image"][row])
-        feature = encode_images(encoder, data["image"][row][None], progress=False)[0]
-        touches.append(Touch(heightmap=heightmap, mask=mask, feature=jnp.asarray(feature),
-                             opening=jnp.float32(data["opening_mm"][row])))
+        touches.append(touch_from_image(model, encoder, data["image"][row], float(data["opening_mm"][row])))
         try:
             belief = localize(view, touches, poses + [T_first])
         except ValueError as error:  # no touch with contact

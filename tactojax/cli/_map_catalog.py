@@ -51,16 +51,21 @@ def add_parser(commands) -> None:
 
 
 def expand_objects(names: list[str]) -> list[str]:
-    """The objects asked for, with ``ycb:all`` and ``ycb:training`` spelt out, each once, in order."""
-    from tactojax.objects import ycb_scans
+    """The objects asked for, with ``ycb:all`` and ``ycb:training`` spelt out, each once, in order.
 
+    A YCB scan that a catalog object is (``ycb:037_scissors`` is ``scissors``,
+    :data:`~tactojax.objects.CATALOG_YCB_SCANS`) goes by the catalog's name, which declares its
+    symmetry: a catalog never holds one object twice, which no touch could tell apart."""
+    from tactojax.objects import CATALOG_YCB_SCANS, ycb_scans
+
+    catalog_name = {f"ycb:{scan}": name for name, scan in CATALOG_YCB_SCANS.items()}
     out: list[str] = []
     for name in names:
         if name in ("ycb:all", "ycb:training"):
             out.extend(f"ycb:{scan}" for scan in ycb_scans(training=name == "ycb:training"))
         else:
             out.append(name)
-    return list(dict.fromkeys(out))
+    return list(dict.fromkeys(catalog_name.get(name, name) for name in out))
 
 
 def run(args) -> int:

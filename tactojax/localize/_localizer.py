@@ -177,6 +177,11 @@ def observe(model: ShapeModel, image: jax.Array,
     return pixels, heightmap, mask, shows_contact(pixels, model.background, mask)
 
 
+_observe = jax.jit(observe)
+"""One compiled program per shape model (its arrays are arguments): a frame's observation, not
+dozens of dispatched operations."""
+
+
 def touch_from_image(model: ShapeModel, encoder: Encoder, image: np.ndarray, opening_mm: float) -> Touch:
     """A touch from one raw tactile frame: the heightmap the shape model predicts (section IV),
     the contact mask the frame shows, and the encoder's features.
@@ -190,7 +195,7 @@ def touch_from_image(model: ShapeModel, encoder: Encoder, image: np.ndarray, ope
         ValueError: a frame of the wrong size or type, or an opening that is not a positive number.
     """
     image = check_frame(image, opening_mm, (*model.image_shape, 3))
-    _, heightmap, mask, _ = observe(model, jnp.asarray(image))
+    _, heightmap, mask, _ = _observe(model, jnp.asarray(image))
     return Touch(heightmap=heightmap, mask=mask, feature=encode_image(encoder, image), opening=np.float32(opening_mm))
 
 

@@ -2,6 +2,7 @@
 
 from tactojax.objects._catalog import CALIBRATION_SHAPES as CALIBRATION_SHAPES
 from tactojax.objects._catalog import CATALOG as CATALOG
+from tactojax.objects._catalog import CATALOG_YCB_SCANS as CATALOG_YCB_SCANS
 from tactojax.objects._catalog import EVALUATION_YCB_SCANS as EVALUATION_YCB_SCANS
 from tactojax.objects._catalog import HOUSEHOLD_OBJECTS as HOUSEHOLD_OBJECTS
 from tactojax.objects._catalog import TABLE2_SHAPES as TABLE2_SHAPES
@@ -34,7 +35,7 @@ from tactojax.objects._raycast import RayHits as RayHits
 from tactojax.objects._raycast import raycast as raycast
 
 __all__ = [
-    "CALIBRATION_SHAPES", "CATALOG", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "SYMMETRY_TOLERANCE_MM", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
+    "CALIBRATION_SHAPES", "CATALOG", "CATALOG_YCB_SCANS", "EVALUATION_YCB_SCANS", "HOUSEHOLD_OBJECTS", "NO_SYMMETRY", "SYMMETRY_TOLERANCE_MM", "TABLE2_SHAPES", "YCB_ATTRIBUTION",
     "Box", "Cylinder", "Difference", "Frustum", "MeshSolid", "ObjectSymmetry", "Placed", "RayHits", "Solid",
     "Sphere", "SquareFrustum", "TactileObject", "Union", "detect_symmetry", "get_object", "mount_mesh",
     "object_from_mesh", "object_symmetry", "placed", "raycast", "resolve_object", "symmetry_residual", "ycb_object",

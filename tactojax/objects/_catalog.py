@@ -171,6 +171,11 @@ def _ycb(name: str, ycb_id: str, description: str, *, axial: bool = False) -> Ca
     return build
 
 
+CATALOG_YCB_SCANS = {"scissors": "037_scissors", "large_marker": "040_large_marker",
+                     "screwdriver": "043_phillips_screwdriver", "foam_brick": "061_foam_brick"}
+"""The catalog objects that are YCB scans: ``ycb:ID`` of one of these is the same object (without
+the symmetry the catalog declares for it)."""
+
 CATALOG: dict[str, Callable[[], TactileObject]] = {
     "calib_sphere": _calib_sphere,
     "calib_semicone_1": functools.partial(_calib_semicone, "calib_semicone_1", 2.0, 8.0, 6.0),
@@ -184,10 +189,10 @@ CATALOG: dict[str, Callable[[], TactileObject]] = {
     "semipyramid": _semipyramid,
     "tape_roll": _tape_roll,
     "gum_box": _gum_box,
-    "scissors": _ycb("scissors", "037_scissors", "YCB 037 scissors (real scan)"),
-    "large_marker": _ycb("large_marker", "040_large_marker", "YCB 040 large marker (stand-in for the paper's flashlight)", axial=True),
-    "screwdriver": _ycb("screwdriver", "043_phillips_screwdriver", "YCB 043 Phillips screwdriver (stand-in for the paper's brush)", axial=True),
-    "foam_brick": _ycb("foam_brick", "061_foam_brick", "YCB 061 foam brick (real scan)"),
+    "scissors": _ycb("scissors", CATALOG_YCB_SCANS["scissors"], "YCB 037 scissors (real scan)"),
+    "large_marker": _ycb("large_marker", CATALOG_YCB_SCANS["large_marker"], "YCB 040 large marker (stand-in for the paper's flashlight)", axial=True),
+    "screwdriver": _ycb("screwdriver", CATALOG_YCB_SCANS["screwdriver"], "YCB 043 Phillips screwdriver (stand-in for the paper's brush)", axial=True),
+    "foam_brick": _ycb("foam_brick", CATALOG_YCB_SCANS["foam_brick"], "YCB 061 foam brick (real scan)"),
 }
 CALIBRATION_SHAPES = tuple(n for n in CATALOG if n.startswith("calib_"))
 TABLE2_SHAPES = ("cylinder", "semicone", "double_cylinder", "cuboid", "semipyramid")

@@ -70,3 +70,15 @@ def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_en
     # Other settings are another catalog.
     assert main(["map-catalog", "cylinder", *common[:-1], "--grid-mm", "30", "--no-progress"]) == 2
     assert "was built with other settings" in capsys.readouterr().err
+
+
+def test_a_ycb_scan_that_a_catalog_object_is_goes_by_the_catalog_name():
+    from tactojax.cli._map_catalog import expand_objects
+    from tactojax.objects import CATALOG_YCB_SCANS, ycb_scans
+
+    expanded = expand_objects(["scissors", "ycb:all", "ycb:037_scissors"])
+    assert expanded[0] == "scissors" and expanded.count("scissors") == 1
+    assert not {f"ycb:{scan}" for scan in CATALOG_YCB_SCANS.values()} & set(expanded)
+    assert set(CATALOG_YCB_SCANS) <= set(expanded)  # named by ycb:all, mapped under the catalog's names
+    assert len(expanded) == len(ycb_scans())  # every scan once, four of them by their catalog names
+    assert get_object("screwdriver").parameters["ycb_id"] == CATALOG_YCB_SCANS["screwdriver"]
