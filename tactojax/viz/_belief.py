@@ -70,7 +70,8 @@ def belief_figure(examples: dict[str, dict], curves: dict[str, dict], *, max_poi
         seed: seed of that subset.
 
     Returns:
-        the matplotlib figure.
+        the matplotlib figure; its grid sets its own spacing (save it with
+        ``save_png(figure, path, tight=False)``).
     """
     names = list(examples)
     steps = sorted(next(iter(examples.values()))["after"])

@@ -7,9 +7,12 @@ from pathlib import Path
 from tactojax.storage import atomic_open
 
 
-def save_png(figure, path: str | Path, *, dpi: int = 100) -> Path:
-    """Lay out ``figure`` and write it to ``path`` (parent folders created; never half-written)."""
-    figure.tight_layout()
+def save_png(figure, path: str | Path, *, dpi: int = 100, tight: bool = True) -> Path:
+    """Lay out ``figure`` tightly (``tight``; False for a figure that sets its own spacing, e.g.
+    around a colorbar spanning rows) and write it to ``path`` (parent folders created; never
+    half-written)."""
+    if tight:
+        figure.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_open(path, "wb") as handle:
