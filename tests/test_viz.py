@@ -92,4 +92,4 @@ def test_belief_figure_shows_each_objects_hypotheses_and_the_calibration_curves(
     assert [line.get_label() for line in curve_axis.lines] == ["a: observed", "a: predicted", "b: observed",
                                                                "b: predicted"]
     np.testing.assert_allclose(curve_axis.lines[1].get_xydata(), [[1, 0.4], [2, 0.8], [3, 0.9]])
-    assert save_png(figure, tmp_path / "belief.png", tight=False).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert save_png(figure, tmp_path / "belief.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

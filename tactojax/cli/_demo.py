@@ -288,7 +288,7 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
     print(format_table(["object", "grasps", "touches", "episodes", "median error (mm)", "within 2 mm",
                         "mean P(within 2 mm)"], rows))
     examples = {n: example for n, example in examples.items() if len(example["after"]) == len(shown)}
-    figure = save_png(belief_figure(examples, curves), out / "demo_belief.png", tight=False)  # its own grid
+    figure = save_png(belief_figure(examples, curves), out / "demo_belief.png")
     print(f"figure: {figure}")
     return {"objects": payload, "figure": str(figure)}
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
 
 def new_grasps_figure(curves: dict[str, dict], calibrations: dict[str, dict]) -> Figure:
@@ -70,12 +71,13 @@ def belief_figure(examples: dict[str, dict], curves: dict[str, dict], *, max_poi
         seed: seed of that subset.
 
     Returns:
-        the matplotlib figure; its grid sets its own spacing (save it with
-        ``save_png(figure, path, tight=False)``).
+        the matplotlib figure (its grid sets its own spacing).
     """
     names = list(examples)
     steps = sorted(next(iter(examples.values()))["after"])
     figure = Figure(figsize=(3.4 * len(names) + 4.4, 6.8))
+    # The grid's own spacing, not tight_layout (which cannot place a colorbar spanning the rows).
+    figure.set_layout_engine(PlaceHolderLayoutEngine(adjust_compatible=True, colorbar_gridspec=True))
     grid = figure.add_gridspec(len(steps), len(names) + 2, width_ratios=[1.0] * len(names) + [0.05, 1.1],
                                wspace=0.45, hspace=0.45)
     rng = np.random.default_rng(seed)

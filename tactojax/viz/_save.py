@@ -7,11 +7,10 @@ from pathlib import Path
 from tactojax.storage import atomic_open
 
 
-def save_png(figure, path: str | Path, *, dpi: int = 100, tight: bool = True) -> Path:
-    """Lay out ``figure`` tightly (``tight``; False for a figure that sets its own spacing, e.g.
-    around a colorbar spanning rows) and write it to ``path`` (parent folders created; never
-    half-written)."""
-    if tight:
+def save_png(figure, path: str | Path, *, dpi: int = 100) -> Path:
+    """Lay out ``figure`` tightly, unless it has a layout engine of its own, and write it to
+    ``path`` (parent folders created; never half-written)."""
+    if figure.get_layout_engine() is None:
         figure.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
