@@ -144,27 +144,38 @@ def failures(view: LocalizationMap, episodes, fingers: int, error: np.ndarray) -
     return rows
 
 
-def parse_args() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_test_set_arguments(parser: argparse.ArgumentParser) -> None:
+    """A map (or ``--object`` to simulate and map), ``--test`` and ``--episodes`` of its new-grasps
+    set, and the shared flags (``--quick``: 2 episodes of 2 grasps on a 20 mm map)."""
     add_map_arguments(parser)
     parser.add_argument("--test", metavar="DIR", help="new-grasps test set of the map's object (default: simulate one)")
-    parser.add_argument("--fingers", type=int, choices=[1, 2], default=2, help="fingers fused per grasp (default 2)")
     parser.add_argument("--episodes", type=int, default=32, help="episodes of a simulated test set (default 32)")
     add_common_arguments(parser, quick="2 episodes of 2 grasps, a 20 mm map", seed_help="a simulated test set")
-    args = parser.parse_args()
+
+
+def load_test_set(args: argparse.Namespace):
+    """The map's view (its stored calibration), its object's name, the test set's path (simulated
+    when ``--test`` is not given), its episodes and the calibration (None: the default)."""
     if args.quick:
         args.episodes = min(args.episodes, 2)
-    return args
-
-
-def main() -> None:
-    args = parse_args()
     model, encoder = resolve_shape_model(args.model), resolve_encoder(args.encoder)
     ((tactile_map, calibration),) = load_maps(args, model, encoder)
     name = tactile_map.object_id
     test = new_grasps_set(args, name, episodes=args.episodes, grasps=2 if args.quick else 3, fingers=2)
     episodes, _ = load_test_episodes(test, name, model, encoder, progress=False)
-    view = LocalizationMap.from_tactile_map(tactile_map, calibration=calibration)
+    return LocalizationMap.from_tactile_map(tactile_map, calibration=calibration), name, test, episodes, calibration
+
+
+def parse_args() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_test_set_arguments(parser)
+    parser.add_argument("--fingers", type=int, choices=[1, 2], default=2, help="fingers fused per grasp (default 2)")
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = parse_args()
+    view, name, test, episodes, calibration = load_test_set(args)
     distance, known = true_distance(view, name)  # once: a mesh's takes a while
     exact_view, exact_episodes = true_surface(view, distance, np.abs(distance) <= REACH_MM), exact_touches(
         episodes, test, name)
