@@ -19,9 +19,10 @@ combination, so a random search among them finds the longest run of fitting pose
 poses form an interval of length ``L`` (the cloud RMSE between its ends). With
 nothing else to prefer one of them, the truth is anywhere in it, and an ideal estimator (its
 middle) is within 2 mm with probability ``min(1, 4 / L)``. The mean of that over the episodes is
-the **ceiling** on the share within 2 mm. It is an upper bound: the interval is one line (a
-touch free to move in a plane is counted as free along a line), the search may miss its
-longest, and the touches are exact. A flat
+the **ceiling** on the share within 2 mm. It is an upper bound: it is local (a look-alike pose
+elsewhere on the object is not counted), the interval is one line (a touch free to move in a
+plane is counted as free along a line), the search may miss its longest, and the touches are
+exact. A flat
 face's slide fits exactly whatever the tolerance; on a curved surface the interval grows with
 it (``--tolerance-mm 0.1``: a sensor better than ours).
 
