@@ -7,30 +7,31 @@ of fused grasps, how far the true pose can move along the directions its touches
 while every touch still fits the object's *true* surface (the simulator's solid) as well as at
 the truth: exact contact points no farther from it than ``--tolerance-mm`` beyond their fit at
 the truth (by default the belief's own contact noise, 0.25 mm), and no exact no-contact point
-of the gel pressed into it by more than that. The
-touches are the simulator's (exact heightmaps and contact masks), so neither the map nor the
-shape model limits anything here: what remains is what the grasps felt.
+of the gel pressed into it by more than that. The touches are the simulator's (exact heightmaps
+and contact masks), so neither the map nor the shape model limits anything here: what remains
+is what the grasps felt.
 
 The directions searched are the free ones of the touches' Gauss-Newton information about the
 pose against the cloud-RMSE metric (as the belief's neighbourhood probes find them), with the
 turn about a continuous symmetry axis left out (it moves nothing a symmetric error counts):
 on a flat face, its two slides and its turn. The edges a touch saw constrain those only in
 combination, so a random search among them finds the longest run of fitting poses. Those
-poses form an interval of length ``L`` (the cloud RMSE between its ends). With
-nothing else to prefer one of them, the truth is anywhere in it, and an ideal estimator (its
-middle) is within 2 mm with probability ``min(1, 4 / L)``. The mean of that over the episodes is
-the **ceiling** on the share within 2 mm. It is an upper bound: it is local (a look-alike pose
-elsewhere on the object is not counted), the interval is one line (a touch free to move in a
-plane is counted as free along a line), the search may miss its longest, and the touches are
-exact. A flat
-face's slide fits exactly whatever the tolerance; on a curved surface the interval grows with
-it (``--tolerance-mm 0.1``: a sensor better than ours).
+poses form an interval of length ``L`` (the cloud RMSE between its ends). With nothing else to
+prefer one of them, the truth is anywhere in it, and an ideal estimator (its middle) is within
+2 mm with probability ``min(1, 4 / L)``. The mean of that over the episodes is the **ceiling**
+on the share within 2 mm.
 
-    python benchmarks/belief_ceiling.py --map gum_box.npz --test data/t-gum_box --json ceiling.json
+It is an upper bound: it is local (a look-alike pose elsewhere on the object is not counted),
+the interval is one line (a touch free to move in a plane is counted as free along a line), the
+search may miss its longest, and the touches are exact. A flat face's slide fits exactly
+whatever the tolerance; on a curved surface the interval grows with it (``--tolerance-mm 0.1``:
+a sensor better than ours).
+
+    python benchmarks/belief_ceiling.py gum_box.npz --test data/t-gum_box --json ceiling.json
     python benchmarks/belief_ceiling.py --quick   # smoke run: 2 episodes of 2 grasps, scissors on a 20 mm map
 
 Primitive catalog objects (the gum box) read their exact signed distance; mesh objects (the YCB
-scans) take about a minute for trimesh's.
+scans) take about a minute for trimesh's. 2-4 minutes per object of 32 episodes on 2 CPU cores.
 """
 
 from __future__ import annotations
