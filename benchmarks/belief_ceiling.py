@@ -252,8 +252,8 @@ def main() -> None:
     print(format_table(["grasps", "ceiling: share within 2 mm", "episodes determined to 4 mm", "median interval (mm)"],
                        [[r["grasps"], f"{100 * r['ceiling_within_2mm']:.0f} %", f"{100 * r['determined_share']:.0f} %",
                          f"{r['median_interval_mm']:.1f}"] for r in rows]))
-    print(f"{name}: {length.shape[0]} episodes x 2 fingers; the simulator's touches on the object's true surface, "
-          f"fit within {args.tolerance_mm} mm of the truth's")
+    print(f"{name}: {length.shape[0]} episodes x {episodes.masks.shape[2]} finger(s); the simulator's touches on "
+          f"the object's true surface, fit within {args.tolerance_mm} mm of the truth's")
     if args.json:
         write_json(args.json, {"object": name, "map": (map_paths(args) or [name])[0], "test": str(test),
                                "tolerance_mm": args.tolerance_mm, "per_grasps": rows,
