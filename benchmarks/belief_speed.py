@@ -9,8 +9,12 @@ once) and times every call, interleaved call by call with CTI-ICP-5
 (:func:`tactojax.localize.baselines.localize_baseline`, the paper's method) on the same touch, so that the
 ratio means something on a busy machine.
 
-Reported: compile times, the median and 90th percentile of first and further touches, the
-CTI-ICP-5 median, and the time to build the map's localization view
+Both run twice: compiled as the library compiles its own programs
+(:data:`tactojax.localize.COMPILER_OPTIONS`: XLA:CPU without its YNNPACK library fusions, as the
+live ``Localizer`` and the evaluations run the belief), and with XLA's defaults (what a plain
+``jax.jit`` of ``update_belief`` gets). Reported for each: compile times, the median and 90th
+percentile of first and further touches, the CTI-ICP-5 median; and the time to build the map's
+localization view
 (:meth:`tactojax.localize.LocalizationMap.from_tactile_map`: its surface grid, once per map, on
 the host). The belief runs with the object's symmetries (a catalog object) and the calibration
 stored in the map's header, if any. Heightmaps and features are computed beforehand (they are
@@ -36,7 +40,7 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
                          new_grasps_set, seconds_of, write_json)
 
 from tactojax.io import resolve_encoder, resolve_shape_model
-from tactojax.localize import BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
+from tactojax.localize import COMPILER_OPTIONS, BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
 from tactojax.localize.baselines import localize_baseline
 from tactojax.localize.evaluation import load_test_episodes
 
@@ -54,14 +58,13 @@ def parse_args() -> argparse.Namespace:
     return args
 
 
-def replay(args, view, episodes, settings) -> dict:
+def replay(args, view, episodes, settings, compiler_options) -> dict:
     """Every touch of the episodes through one jitted belief update, interleaved with CTI-ICP-5
-    on the same touch: seconds per call (first touches, further touches, the reference) and
-    the first calls (compiling) apart."""
-    update = jax.jit(update_belief, static_argnames=("settings",))
-
-    def cti_icp(touch):
-        return localize_baseline(jax.random.key(args.seed), view, touch, method="cti-icp-5")
+    on the same touch, both compiled with ``compiler_options``: seconds per call (first touches,
+    further touches, the reference) and the first calls (compiling) apart."""
+    update = jax.jit(update_belief, static_argnames=("settings",), compiler_options=compiler_options)
+    cti_icp = jax.jit(lambda touch: localize_baseline(jax.random.key(args.seed), view, touch, method="cti-icp-5"),
+                      compiler_options=compiler_options)
 
     def touch(e, g, f):
         take = lambda x: x[e, g, f]  # noqa: E731
@@ -109,33 +112,45 @@ def main() -> None:
     if args.fingers > fingers:
         raise SystemExit(f"--fingers {args.fingers}: the test set records {fingers} finger(s) per grasp")
     settings = BeliefSettings()
-    calls = replay(args, view, episodes, settings)
-    first, further, reference = calls["first"], calls["further"], calls["reference"]
-    rows = [["belief, first touch", len(first), ms(first), ms(first, 90), calls["compile_belief_s"]],
-            ["belief, each further touch", len(further), ms(further), ms(further, 90), calls["compile_further_s"]],
-            ["CTI-ICP-5 (reference)", len(reference), ms(reference), ms(reference, 90), calls["compile_cti_s"]]]
-    print(format_table(["step", "calls", "median ms", "p90 ms", "first call s (compile)"], rows))
-    print(f"map view (surface grid) of {len(view)} imprints (once per map, host): {surface_s:.2f} s "
-          f"(first call: {surface_first_s:.2f} s); belief calibration: "
-          f"{'stored' if calibration is not None else 'none (default)'}")
-    print(f"belief / CTI-ICP-5, median: first touch {ms(first) / ms(reference):.1f}x, "
-          f"further touches {ms(further) / ms(reference):.1f}x")
-    if args.json:
-        write_json(args.json, {
-            "map": (map_paths(args) or [tactile_map.object_id])[0], "test": str(test), "fingers": args.fingers,
-            "episodes": calls["episodes"], "seed": args.seed,
-            "settings": {"sources": settings.sources, "candidates_per_source": settings.grid.size,
-                         "screen_points": settings.screen_points, "screened": settings.screened,
-                         "registered_sources": getattr(settings, "registered_sources", None),
-                         "refine": settings.refine, "hypotheses": settings.hypotheses},
+    variants = {"library": COMPILER_OPTIONS, "xla_defaults": None} if COMPILER_OPTIONS else {"xla_defaults": None}
+    runs = {name: replay(args, view, episodes, settings, options) for name, options in variants.items()}
+    rows, summary = [], {}
+    for name, calls in runs.items():
+        first, further, reference = calls["first"], calls["further"], calls["reference"]
+        label = "" if name == "library" else " (XLA defaults)"
+        rows += [[f"belief, first touch{label}", len(first), ms(first), ms(first, 90), calls["compile_belief_s"]],
+                 [f"belief, each further touch{label}", len(further), ms(further), ms(further, 90),
+                  calls["compile_further_s"]],
+                 [f"CTI-ICP-5 (reference){label}", len(reference), ms(reference), ms(reference, 90),
+                  calls["compile_cti_s"]]]
+        summary[name] = {
+            "compiler_options": variants[name],
             "first_touch_ms": {"median": ms(first), "p90": ms(first, 90), "calls": len(first)},
             "further_touch_ms": {"median": ms(further), "p90": ms(further, 90), "calls": len(further)},
             "cti_icp_5_ms": {"median": ms(reference), "p90": ms(reference, 90), "calls": len(reference)},
             "compile_s": {"belief": calls["compile_belief_s"], "belief_further": calls["compile_further_s"],
                           "cti_icp_5": calls["compile_cti_s"]},
+            "median_first_over_reference": statistics.median(first) / statistics.median(reference),
+            "median_further_over_reference": statistics.median(further) / statistics.median(reference)}
+    print(format_table(["step", "calls", "median ms", "p90 ms", "first call s (compile)"], rows))
+    print(f"map view (surface grid) of {len(view)} imprints (once per map, host): {surface_s:.2f} s "
+          f"(first call: {surface_first_s:.2f} s); belief calibration: "
+          f"{'stored' if calibration is not None else 'none (default)'}")
+    for name, row in summary.items():
+        print(f"belief / CTI-ICP-5, median{' (XLA defaults)' if name != 'library' else ''}: first touch "
+              f"{row['median_first_over_reference']:.1f}x, further touches {row['median_further_over_reference']:.1f}x")
+    headline = summary.get("library", summary["xla_defaults"])
+    if args.json:
+        write_json(args.json, {
+            "map": (map_paths(args) or [tactile_map.object_id])[0], "test": str(test), "fingers": args.fingers,
+            "episodes": runs["xla_defaults"]["episodes"], "seed": args.seed,
+            "settings": {"sources": settings.sources, "candidates_per_source": settings.grid.size,
+                         "screen_points": settings.screen_points, "screened": settings.screened,
+                         "registered_sources": getattr(settings, "registered_sources", None),
+                         "refine": settings.refine, "hypotheses": settings.hypotheses},
+            **headline, "compiled": summary,
             "calibration": None if calibration is None else "stored", "symmetries": len(view.symmetries.wxyz_xyz),
             "map_surface_s": surface_s, "map_surface_first_call_s": surface_first_s,
-            "median_further_over_reference": statistics.median(further) / statistics.median(reference),
             "machine": machine_info()})
         print(f"wrote {args.json}")
 

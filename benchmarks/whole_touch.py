@@ -41,6 +41,7 @@ from tactojax.features import apply_encoder
 from tactojax.geometry import sensor_pose
 from tactojax.io import open_dataset, resolve_encoder, resolve_shape_model
 from tactojax.localize import (
+    COMPILER_OPTIONS,
     BeliefSettings,
     LocalizationMap,
     Localizer,
@@ -64,10 +65,10 @@ except ImportError:
     from _peer import PeerPipeline
 
 
-def compiled_stage(function, *args):
+def compiled_stage(function, *args, compiler_options=None):
     """(compiled program, compile seconds, kernels, GFLOP per call) of ``jax.jit(function)(*args)``."""
     start = time.perf_counter()
-    compiled = jax.jit(function).lower(*args).compile()
+    compiled = jax.jit(function, compiler_options=compiler_options).lower(*args).compile()
     compile_s = time.perf_counter() - start
     analysis = compiled.cost_analysis()
     analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
@@ -126,7 +127,9 @@ def new_touches(args, name: str) -> dict:
 
 
 def stage_timings(args, tactile_map, model, encoder, settings, images, openings) -> dict:
-    """tactojax stage by stage, each jitted on its own: median ms, kernels, compile s, GFLOP."""
+    """tactojax stage by stage, each jitted on its own: median ms, kernels, compile s, GFLOP. The
+    localization stages are compiled as the library compiles its own programs (``COMPILER_OPTIONS``),
+    the networks with XLA's defaults, as in the ``Localizer``."""
     view, library = LocalizationMap.from_tactile_map(tactile_map), MapLibrary.from_maps([tactile_map])
     bias = coordinate_bias(model)  # once per model, as the Localizer does
     method = f"cti-icp-{args.n}"
@@ -149,8 +152,8 @@ def stage_timings(args, tactile_map, model, encoder, settings, images, openings)
         touch = Touch(heightmap=heightmap, mask=mask, feature=feature, opening=opening)
         return chosen, localize_baseline(jax.random.key(0), view, touch, method=method)
 
-    def measure(function, inputs):
-        program, compile_s, kernels, gflop = compiled_stage(function, *inputs[0])
+    def measure(function, inputs, compiler_options=None):
+        program, compile_s, kernels, gflop = compiled_stage(function, *inputs[0], compiler_options=compiler_options)
         return program, {"median_ms": median_ms(program, inputs, args.repeats), "kernels": kernels,
                          "compile_s": compile_s, "gflop": gflop}
 
@@ -160,8 +163,8 @@ def stage_timings(args, tactile_map, model, encoder, settings, images, openings)
     features_program, stages["features"] = measure(features_stage, frames)
     queries = [(*heightmap_program(*frame), features_program(*frame), jnp.float32(opening))
                for frame, opening in zip(frames, openings)]
-    _, stages["belief (one touch)"] = measure(belief_stage, queries)
-    _, stages[f"identify + {method.upper()}"] = measure(localize_stage, queries)
+    _, stages["belief (one touch)"] = measure(belief_stage, queries, COMPILER_OPTIONS)
+    _, stages[f"identify + {method.upper()}"] = measure(localize_stage, queries, COMPILER_OPTIONS)
     return stages
 
 

@@ -29,6 +29,7 @@ from tactojax.localize._belief import WITHIN_MM as WITHIN_MM
 from tactojax.localize._calibrate import calibration_from_json as calibration_from_json
 from tactojax.localize._calibrate import calibration_to_json as calibration_to_json
 from tactojax.localize._calibrate import fit_calibration as fit_calibration
+from tactojax.localize._compile import COMPILER_OPTIONS as COMPILER_OPTIONS
 from tactojax.localize._identify_episodes import shared_calibration as shared_calibration
 from tactojax.localize._localize import localize as localize
 from tactojax.localize._localizer import LiveEstimate as LiveEstimate
@@ -46,6 +47,7 @@ from tactojax.localize._tracker import Tracker as Tracker
 from tactojax.localize._tracker import TrackingSettings as TrackingSettings
 
 __all__ = [
+    "COMPILER_OPTIONS",
     "WITHIN_MM",
     "BeliefCalibration",
     "BeliefDigest",

@@ -34,6 +34,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from tactojax import _struct as struct
 from tactojax.geometry import take
 from tactojax.localize._belief import WITHIN_MM, PoseBelief, hypothesis_distances
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._likelihood import LikelihoodSettings, log_likelihood
 from tactojax.localize._map import LocalizationMap
 from tactojax.localize._predict_touch import (MarchingGrid, PredictedGrasp, PredictionSettings, predict_grasp,
@@ -105,7 +106,7 @@ def should_stop(belief: PoseBelief, threshold: float = 0.95) -> Bool[Array, ""]:
     return belief.probability_within() >= threshold
 
 
-@jax.jit
+@top_level_jit
 def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array, ""]:
     """The paper's error of a belief whose object truly sits at ``T_world_object`` (evaluation,
     e.g. on a simulated cell): the RMSE between all its fused touches' contact points placed by
@@ -186,7 +187,7 @@ def grasp_gain(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
     return gain, closes, jnp.sum(predictions.mask[0]).astype(jnp.float32)
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
+@functools.partial(top_level_jit, static_argnames=("settings",))
 def observe_failed_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_world_gripper: jaxlie.SE3,
                          settings: ActiveSettings = ActiveSettings()) -> PoseBelief:
     """The belief after a grasp at ``T_world_gripper`` failed: the jaws closed on nothing, or
@@ -218,7 +219,7 @@ def observe_failed_grasp(view: LocalizationMap, grid: MarchingGrid, belief: Pose
                           log_evidence=jnp.where(jnp.isfinite(total), belief.log_evidence + total, belief.log_evidence))
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
+@functools.partial(top_level_jit, static_argnames=("settings",))
 def next_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_world_gripper: jaxlie.SE3,
                settings: ActiveSettings = ActiveSettings()) -> GraspRanking:
     """Candidate grasps ranked by expected gain (see the module docstring). Pure, jit-compiled
@@ -254,7 +255,7 @@ def map_box(view: LocalizationMap) -> Float[Array, "2 3"]:
                       jnp.max(jnp.where(valid[:, None], points, -jnp.inf), axis=0)])
 
 
-@functools.partial(jax.jit, static_argnames=("count", "settings"))
+@functools.partial(top_level_jit, static_argnames=("count", "settings"))
 def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, count: int,
                    settings: ActiveSettings = ActiveSettings()) -> tuple[jaxlie.SE3, Bool[Array, "C"]]:
     """``count`` candidate grasps that the map says close on the object, from the belief's

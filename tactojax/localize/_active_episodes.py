@@ -38,6 +38,7 @@ from tqdm.auto import tqdm
 from tactojax.geometry import heightmap_to_points, take
 from tactojax.localize._active import ActiveSettings, next_grasp, observe_failed_grasp, propose_grasps
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._evaluate import cloud_moments
 from tactojax.localize._localize import jitted_update
 from tactojax.localize._map import LocalizationMap, Touch
@@ -113,7 +114,7 @@ def run_active_episodes(
     grid = map_marching_grid(view)
     protocol = GraspsProtocol(episodes=episodes, grasps_per_episode=max_grasps, fingers=2, turns_deg=tuple(turns_deg))
     protocol_key, policy_key, noise_key = jax.random.split(key, 3)
-    errors = jax.jit(_errors)
+    errors = top_level_jit(_errors)
     shape = (episodes, max_grasps)
     out = ActiveEpisodes(*({p: np.zeros(shape) for p in policies} for _ in range(3)),
                          {p: np.zeros(shape, bool) for p in policies}, np.zeros(episodes), [])

@@ -23,6 +23,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from tactojax.geometry import take
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._icp import IcpSettings, fit_quality, icp
 from tactojax.localize._map import LocalizationMap, Touch, canonical_touch
 from tactojax.localize._points import POINTS_PER_TOUCH, contact_points
@@ -140,7 +141,7 @@ def baseline_estimate(
     return estimate_pose(view, points, points_valid, indices, valid, method, settings=settings)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "settings", "points_per_touch"))
+@functools.partial(top_level_jit, static_argnames=("method", "settings", "points_per_touch"))
 def _localize_baseline(key, view, touch, exclude, max_opening_difference_mm, method, settings, points_per_touch):
     return baseline_estimate(key, view, touch, method, settings=settings, points_per_touch=points_per_touch,
                              max_opening_difference_mm=max_opening_difference_mm, exclude=exclude)

@@ -45,6 +45,7 @@ from jaxtyping import Array, Bool, Float, Int
 from tactojax import _struct as struct
 from tactojax.geometry import take
 from tactojax.localize._candidates import CandidateGrid
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._evaluate import closest_copy_square, cloud_moments, moment_rmse
 from tactojax.localize._icp import IcpSettings, icp
@@ -211,14 +212,14 @@ class PoseBelief:
         return _truth_scores(self, T_object_reference)
 
 
-@jax.jit
+@top_level_jit
 def _probability_within(belief: PoseBelief, threshold_mm: Float[Array, ""]) -> Float[Array, ""]:
     distance = hypothesis_distances(belief, belief.best, symmetric=True)
     near = jnp.sum(jnp.where(distance <= threshold_mm, belief.probabilities, 0.0))
     return near * belief.calibration.found_probability(belief.touches)
 
 
-@jax.jit
+@top_level_jit
 def _modes(belief: PoseBelief, separation_mm: Float[Array, ""]) -> tuple[Int[Array, "M"], Float[Array, "M"]]:
     order = jnp.argsort(-belief.log_weights)
     poses = take(belief.T_object_reference, order)
@@ -231,7 +232,7 @@ def _modes(belief: PoseBelief, separation_mm: Float[Array, ""]) -> tuple[Int[Arr
     return mode, mass
 
 
-@jax.jit
+@top_level_jit
 def _credible_set(belief: PoseBelief, level: Float[Array, ""], separation_mm: Float[Array, ""]) -> Bool[Array, "M"]:
     mode, mass = _modes(belief, separation_mm)
     order = jnp.argsort(-mass)
@@ -240,7 +241,7 @@ def _credible_set(belief: PoseBelief, level: Float[Array, ""], separation_mm: Fl
     return chosen[mode] & jnp.isfinite(belief.log_weights)
 
 
-@jax.jit
+@top_level_jit
 def _truth_scores(belief: PoseBelief, T_object_reference: jaxlie.SE3) -> tuple[Float[Array, ""], Bool[Array, ""]]:
     near = hypothesis_distances(belief, T_object_reference, symmetric=True) <= WITHIN_MM
     mass = jnp.sum(jnp.where(near, belief.probabilities, 0.0))
@@ -270,7 +271,7 @@ class BeliefDigest:
     """Their first-touch sensor poses in the object frame."""
 
 
-@functools.partial(jax.jit, static_argnames=("modes",))
+@functools.partial(top_level_jit, static_argnames=("modes",))
 def belief_digest(belief: PoseBelief, modes: int = 3) -> BeliefDigest:
     """A belief's estimate, confidence and ``modes`` most probable modes, in one compiled call."""
     _, mass = belief.modes()

@@ -54,6 +54,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from tactojax import _struct as struct
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief, belief_terms, hypothesis_distances
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs
 from tactojax.localize._map import DEFAULT_FOUND, BeliefCalibration, LocalizationMap
 
@@ -87,7 +88,7 @@ class BeliefRecord:
     """Hypotheses within 2 mm of the true pose, up to the object's symmetry."""
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
+@functools.partial(top_level_jit, static_argnames=("settings",))
 def _records(view: LocalizationMap, beliefs: PoseBelief, settings: BeliefSettings) -> BeliefRecord:
     """(N,) what calibration needs of every belief of ``beliefs`` (leading axis N)."""
 

@@ -26,6 +26,7 @@ from tqdm.auto import tqdm
 
 from tactojax import _struct as struct
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._map import LocalizationMap, Touch
 from tactojax.localize._sharded import batch_mesh, in_batches, over_batch, run_sharded
 
@@ -120,7 +121,7 @@ def beliefs_along(view: LocalizationMap, episode: TestEpisodes, fingers: int, al
     return beliefs
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "alone", "settings", "batch_size", "mesh"))
+@functools.partial(top_level_jit, static_argnames=("fingers", "alone", "settings", "batch_size", "mesh"))
 def _episode_beliefs(view: LocalizationMap, episodes: TestEpisodes, fingers: int, alone: bool,
                      settings: BeliefSettings, batch_size: int, mesh) -> PoseBelief:
     def local(view, episodes):

@@ -27,6 +27,7 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._baselines import baseline_estimate, estimate_pose, parse_method
 from tactojax.localize._candidates import CandidateGrid
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._correspondences import matvec, valid_centroid
 from tactojax.localize._icp import IcpSettings
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, map_touch
@@ -211,7 +212,7 @@ def oracle_imprints(
     return indices, eligible[indices]
 
 
-@functools.partial(jax.jit,
+@functools.partial(top_level_jit,
                    static_argnames=("method", "settings", "points_per_touch", "oracle", "batch_size", "mesh"))
 def _baseline_queries(shared, queries, method, settings, points_per_touch, oracle, batch_size, mesh):
     """Baseline estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on each
@@ -238,7 +239,7 @@ def _baseline_queries(shared, queries, method, settings, points_per_touch, oracl
         shared, queries)
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "batch_size", "mesh"))
+@functools.partial(top_level_jit, static_argnames=("settings", "batch_size", "mesh"))
 def _belief_queries(view, queries, settings, batch_size, mesh):
     """The belief's estimates and errors of (Q,) held-out queries, ``batch_size`` at a time on
     each device of ``mesh``."""

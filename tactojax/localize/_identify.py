@@ -16,6 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
 from tactojax import _struct as struct
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._retrieval import MAX_OPENING_DIFFERENCE_MM
 from tactojax.mapping import TactileMap
 
@@ -85,7 +86,7 @@ def identify(
     return jnp.argmax(best), best
 
 
-@jax.jit
+@top_level_jit
 def _identify_batch(library, features, openings, own_map, own_index, max_opening_difference_mm):
     def one(feature, opening, own, index):
         exclude = jnp.where(jnp.arange(library.valid.shape[0]) == own, index, -1)

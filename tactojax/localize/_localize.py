@@ -18,10 +18,11 @@ import numpy as np
 from jaxtyping import Int
 
 from tactojax.localize._belief import BeliefSettings, PoseBelief, empty_belief, update_belief
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._map import LocalizationMap, Touch, _strong, canonical_touch
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
+@functools.partial(top_level_jit, static_argnames=("settings",))
 def update_program(view, belief, touch, T_world_sensor, exclude, settings):
     """The one compiled per-touch update (positional ``exclude``): :func:`jitted_update`, the live
     :class:`~tactojax.localize.Localizer` and the active episodes all run it, so that a process

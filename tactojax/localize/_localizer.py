@@ -51,6 +51,7 @@ from tactojax.features._encoder import apply_encoder
 from tactojax.geometry._kinematics import as_host_pose, compose_on_host, finger_poses_on_host, inverse_on_host
 from tactojax.localize._active import ActiveSettings, observe_failed_grasp
 from tactojax.localize._belief import BeliefSettings, PoseBelief, belief_digest, empty_belief
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._identify_episodes import (OBJECT_TOLERANCE, likely_objects, object_probabilities,
                                                   shared_calibration)
 from tactojax.localize._localize import update_program
@@ -324,10 +325,10 @@ class Localizer:
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
         # Strongly typed, as every updated belief is (a weak type would not match them). Every
         # map's window of the stack has one shape: its belief too, and one compilation serves them all.
-        empty = jax.jit(lambda stack, m: jax.tree.map(_strong, empty_belief(stack.view(m), settings)))
+        empty = top_level_jit(lambda stack, m: jax.tree.map(_strong, empty_belief(stack.view(m), settings)))
         self._empty = tuple(empty(self.stack, np.int32(m)) for m in range(len(self.stack)))
         # The program every per-touch update runs (localize's), on the map's window of the stack.
-        self._update = jax.jit(_stacked_update, static_argnums=6).lower(
+        self._update = top_level_jit(_stacked_update, static_argnums=6).lower(
             self.stack, np.int32(0), self._empty[0], example_touch, pose, np.int32(-1), settings).compile()
         self._summarise = belief_digest.lower(self._empty[0], live.modes).compile()
         self.compile_s = time.perf_counter() - start
@@ -530,7 +531,7 @@ class Localizer:
         episode compiles. Returns the compiled program."""
         if self._failed is None or self._failed[0] != settings:
             pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-            program = jax.jit(lambda stack, m, grids, belief, T_world_gripper: observe_failed_grasp(
+            program = top_level_jit(lambda stack, m, grids, belief, T_world_gripper: observe_failed_grasp(
                 stack.view(m), grids.grid(m), belief, T_world_gripper, settings))
             self._failed = (settings, program.lower(self.stack, np.int32(0), self.marching_grids(), self._empty[0],
                                                     pose).compile())

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._episode_beliefs import (
     TestEpisodes,
     alone_steps,
@@ -152,7 +153,7 @@ def _errors(T_true: jaxlie.SE3, T_estimate: jaxlie.SE3, mean, covariance, valid,
     return rmse, jnp.minimum(rmse, symmetric), translation, rotation
 
 
-@functools.partial(jax.jit, static_argnames=("method", "points_per_touch", "batch_size", "mesh"))
+@functools.partial(top_level_jit, static_argnames=("method", "points_per_touch", "batch_size", "mesh"))
 def _baseline_touches(view: LocalizationMap, touches: TestEpisodes, method, points_per_touch: int, batch_size: int,
                       mesh):
     """Touches localized alone by a baseline: ``touches`` holds one per item (leading axis T), as
@@ -172,7 +173,7 @@ def _baseline_touches(view: LocalizationMap, touches: TestEpisodes, method, poin
         view, touches)
 
 
-@functools.partial(jax.jit, static_argnames=("fingers", "alone"))
+@functools.partial(top_level_jit, static_argnames=("fingers", "alone"))
 def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: PoseBelief, fingers: int,
                       alone: bool):
     """(E, N) errors and probabilities of every episode's beliefs along its touch sequence

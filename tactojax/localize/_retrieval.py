@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from tactojax.localize._compile import top_level_jit
+
 MAX_OPENING_DIFFERENCE_MM = 2.0
 """CTI compares only imprints whose gripper opening differs by less than this (paper VI)."""
 
@@ -32,7 +34,7 @@ def cosine_similarities(
     return rows @ query
 
 
-@functools.partial(jax.jit, static_argnames=("n",))
+@functools.partial(top_level_jit, static_argnames=("n",))
 def closest_imprints(
     features: Float[Array, "K F"],
     openings: Float[Array, "K"],

@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from tactojax import _struct as struct
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._map import BeliefCalibration, LocalizationMap
 from tactojax.localize._surface import MapSurface
 
@@ -204,7 +205,7 @@ class StackedMaps:
         return int(sum(leaf.nbytes for leaf in jax.tree.leaves(self)))
 
 
-@jax.jit
+@top_level_jit
 def _view_without_blocks(stack: StackedMaps, index: Int[Array, ""]) -> LocalizationMap:
     """A map's view without its surface's blocks (:meth:`StackedMaps.window` attaches the stack's
     own after: a program's outputs are new arrays, and the blocks are the stack's largest)."""

@@ -46,6 +46,7 @@ import numpy as np
 
 from tactojax.features import Encoder
 from tactojax.localize._belief import BeliefSettings
+from tactojax.localize._compile import top_level_jit
 from tactojax.localize._correspondences import valid_centroid
 from tactojax.localize._icp import IcpSettings, icp
 from tactojax.localize._localizer import Frame, LiveEstimate, Localizer, LiveSettings, check_gripper_pose
@@ -224,7 +225,8 @@ class Tracker:
                       mask=jax.ShapeDtypeStruct(model.image_shape, jnp.bool_), feature=_NO_FEATURE,
                       opening=_NO_OPENING)
         pose = jaxlie.SE3(jax.ShapeDtypeStruct((7,), jnp.float32))
-        frame = jax.jit(lambda stack, m, *args: _track_frame(stack.view(m), *args, tracking=tracking, settings=icp))
+        frame = top_level_jit(lambda stack, m, *args: _track_frame(stack.view(m), *args, tracking=tracking,
+                                                                   settings=icp))
         # On the map's window of the localizer's stack: one compilation serves every map.
         self._track = frame.lower(self.localizer.stack, np.int32(0), touch, pose, pose).compile()
         self.compile_s = self.localizer.compile_s + time.perf_counter() - start
