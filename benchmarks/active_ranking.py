@@ -27,7 +27,7 @@ except ImportError:  # run as a script: benchmarks/ itself is on sys.path
                          new_grasps_set, seconds_of, write_json)
 
 from tactojax.io import resolve_encoder, resolve_shape_model
-from tactojax.localize import BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
+from tactojax.localize import COMPILER_OPTIONS, BeliefSettings, LocalizationMap, Touch, empty_belief, update_belief
 from tactojax.localize.active import ActiveSettings, map_marching_grid, next_grasp, propose_grasps
 from tactojax.localize.evaluation import load_test_episodes
 
@@ -50,7 +50,8 @@ def time_ranking(args, view, grid, episodes) -> dict[str, list[float]]:
     """Seconds of every call: the two belief updates of each episode's first grasp (the
     reference), proposing candidates and ranking them."""
     settings, belief_settings = ActiveSettings(hypotheses=args.hypotheses), BeliefSettings()
-    update = jax.jit(update_belief, static_argnames=("settings",))
+    # Compiled as the proposal and the ranking are (tactojax.localize.COMPILER_OPTIONS).
+    update = jax.jit(update_belief, static_argnames=("settings",), compiler_options=COMPILER_OPTIONS)
     times = {"propose": [], "rank": [], "update": []}
     for e in range(min(args.episodes, episodes.openings.shape[0])):
         belief = empty_belief(view, belief_settings)

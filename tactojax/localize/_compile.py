@@ -6,11 +6,10 @@ by 10 ICP iterations, each a few sums over a few hundred points, and loops over 
 holds. XLA:CPU (jaxlib 0.10) hands reductions and element-wise fusions to the YNNPACK library,
 whose fixed cost per call outweighs the work at these sizes. Compiled without them
 (``xla_cpu_experimental_ynn_fusion_type`` empty: XLA's own fused loops), on 2 CPU cores
-(``benchmarks/belief_speed.py``, the scissors' 10 mm map, 8 episodes of new grasps): a belief
-update 13.2 ms for a first touch and 30.5 ms for a further one, against 26.8 and 54.7 ms with
-them; CTI-ICP-5 1.38 against 1.63 ms. The networks (heightmap, features) keep them: their
-convolutions and matrix products gain from the library (the heightmap 1.65 ms with, 3.07 ms
-without).
+(``benchmarks/belief_speed.py``, the scissors' 10 mm map, 8 episodes of new grasps, both in one
+process): a belief update 13.2 ms for a first touch and 32.1 ms for a further one, against 20.7
+and 42.0 ms with them. The networks (heightmap, features) keep them: their convolutions and
+matrix products gain from the library (the heightmap 1.7-1.9 ms with, 2.6-3.1 ms without).
 
 The option is a compiler option of each program, not a process-wide flag, so importing
 tactojax changes nothing else a user compiles. JAX takes compiler options only on the outermost
