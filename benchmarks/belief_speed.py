@@ -114,15 +114,9 @@ def main() -> None:
     settings = BeliefSettings()
     variants = {"library": COMPILER_OPTIONS, "xla_defaults": None} if COMPILER_OPTIONS else {"xla_defaults": None}
     runs = {name: replay(args, view, episodes, settings, options) for name, options in variants.items()}
-    rows, summary = [], {}
+    summary = {}
     for name, calls in runs.items():
         first, further, reference = calls["first"], calls["further"], calls["reference"]
-        label = "" if name == "library" else " (XLA defaults)"
-        rows += [[f"belief, first touch{label}", len(first), ms(first), ms(first, 90), calls["compile_belief_s"]],
-                 [f"belief, each further touch{label}", len(further), ms(further), ms(further, 90),
-                  calls["compile_further_s"]],
-                 [f"CTI-ICP-5 (reference){label}", len(reference), ms(reference), ms(reference, 90),
-                  calls["compile_cti_s"]]]
         summary[name] = {
             "compiler_options": variants[name],
             "first_touch_ms": {"median": ms(first), "p90": ms(first, 90), "calls": len(first)},
@@ -132,6 +126,12 @@ def main() -> None:
                           "cti_icp_5": calls["compile_cti_s"]},
             "median_first_over_reference": statistics.median(first) / statistics.median(reference),
             "median_further_over_reference": statistics.median(further) / statistics.median(reference)}
+    steps = (("belief, first touch", "first_touch_ms", "belief"),
+             ("belief, each further touch", "further_touch_ms", "belief_further"),
+             ("CTI-ICP-5 (reference)", "cti_icp_5_ms", "cti_icp_5"))
+    rows = [[f"{step}{'' if name == 'library' else ' (XLA defaults)'}", row[key]["calls"], row[key]["median"],
+             row[key]["p90"], row["compile_s"][compiled]]
+            for name, row in summary.items() for step, key, compiled in steps]
     print(format_table(["step", "calls", "median ms", "p90 ms", "first call s (compile)"], rows))
     print(f"map view (surface grid) of {len(view)} imprints (once per map, host): {surface_s:.2f} s "
           f"(first call: {surface_first_s:.2f} s); belief calibration: "
