@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._maps import add_encoder_argument, is_symmetric
-from tactojax.cli._table import format_table, write_json
+from tactojax.cli._table import format_table, share_with_interval, write_json
 
 DEFAULT_POLICIES = "active,random,largest-contact"
 
@@ -84,8 +84,9 @@ def run(args) -> int:
         rows += object_rows
         stop_rows += object_stop_rows
         curves.update(object_curves)
-    print(format_table(["object", "policy", "grasps", "median RMSE (mm)", "symmetric (mm)", "<= 1 mm", "<= 2 mm",
-                        "<= 5 mm", "mean P(within 2 mm)", "calibration gap, bins >= 10", "spent"], rows))
+    print(format_table(["object", "policy", "grasps", "median RMSE (mm)", "symmetric (mm)", "<= 1 mm",
+                        "<= 2 mm [95 % interval]", "<= 5 mm", "mean P(within 2 mm)", "calibration gap, bins >= 10",
+                        "spent"], rows))
     print(f"\nstopping rule: P(within 2 mm) >= {args.stop} within {args.max_grasps} grasps")
     print(format_table(["object", "policy", "stopped", "within 2 mm of those", "mean grasps to stop"], stop_rows))
     for name, entry in payload["objects"].items():
@@ -120,7 +121,7 @@ def _summarise_object(result, obj, tactile_map, policies, args):
     tables, and its curves of the share within 2 mm against grasps (one per policy)."""
     import numpy as np
 
-    from tactojax.localize.evaluation import calibration, calibration_gap
+    from tactojax.localize.evaluation import calibration, calibration_gap, share_interval
 
     rows, stop_rows, curves = [], [], {}
     symmetric = is_symmetric(tactile_map)
@@ -133,12 +134,18 @@ def _summarise_object(result, obj, tactile_map, policies, args):
                        "median_rmse_mm": float(np.median(result.rmse[policy][:, k])),
                        "median_symmetric_rmse_mm": float(np.median(result.symmetric_rmse[policy][:, k])),
                        "within_mm": {str(t): float(np.mean(error[:, k] <= t)) for t in (1, 2, 5)},
+                       "within_2mm_interval": share_interval(int(np.sum(within)), len(within)),
                        "spent_share": float(np.mean(result.spent[policy][:, k])),
-                       "calibration": calibration(result.probability[policy][:, k], within)}
+                       "calibration": calibration(result.probability[policy][:, k], within),
+                       "per_localization": {"rmse_mm": result.rmse[policy][:, k].tolist(),
+                                            "symmetric_rmse_mm": result.symmetric_rmse[policy][:, k].tolist(),
+                                            "p_within_2mm": result.probability[policy][:, k].tolist(),
+                                            "spent": result.spent[policy][:, k].tolist()}}
             summaries.append(summary)
             rows.append([obj.name, policy, k + 1, summary["median_rmse_mm"],
                          summary["median_symmetric_rmse_mm"] if symmetric else "-",
-                         *(f"{100 * summary['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
+                         f"{100 * summary['within_mm']['1']:.0f} %", share_with_interval(summary),
+                         f"{100 * summary['within_mm']['5']:.0f} %",
                          float(np.mean(result.probability[policy][:, k])),
                          calibration_gap(summary["calibration"]), f"{100 * summary['spent_share']:.0f} %"])
         stops[policy] = stop = stop_figures(result.probability[policy], error, args.stop)
@@ -151,9 +158,6 @@ def _summarise_object(result, obj, tactile_map, policies, args):
     entry = {
         "episodes": args.episodes, "symmetric": symmetric, "results": summaries, "stop": stops,
         "turn_deg": result.turn_deg.tolist(),
-        "episodes_detail": {p: {"symmetric_rmse_mm": result.symmetric_rmse[p].tolist(),
-                                "rmse_mm": result.rmse[p].tolist(), "probability": result.probability[p].tolist(),
-                                "spent": result.spent[p].tolist()} for p in policies},
         "within_2mm_at_90_270": {p: [float(np.mean((result.symmetric_rmse[p] if symmetric else result.rmse[p])
                                                    [hard, k] <= 2.0)) if hard.any() else None
                                      for k in range(args.max_grasps)] for p in policies},

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._maps import is_symmetric, maps_and_query_encoder, stored_calibration
-from tactojax.cli._table import format_table, write_json
+from tactojax.cli._table import format_table, share_with_interval, write_json
 
 
 def run_new_grasps(args) -> int:
@@ -39,7 +39,8 @@ def run_new_grasps(args) -> int:
         for r, s in zip(results, summaries):
             rows.append([tactile_map.object_id, r.method, r.fingers, r.grasps if r.fused else "1 (each)", s["count"], s["median_rmse_mm"],
                          s["median_symmetric_rmse_mm"] if symmetric else "-",
-                         *(f"{100 * s['within_mm'][t]:.0f} %" for t in ("1", "2", "5")),
+                         f"{100 * s['within_mm']['1']:.0f} %", share_with_interval(s),
+                         f"{100 * s['within_mm']['5']:.0f} %",
                          s["median_translation_mm"], s["median_rotation_deg"],
                          calibration_gap(s["calibration"]) if "calibration" in s else "-",
                          s.get("mean_nll_truth", "-"),
@@ -59,7 +60,7 @@ def run_new_grasps(args) -> int:
             "calibrated": fit is not None,
             "results": summaries, "calibration": calibrations.get(tactile_map.object_id)}
     print(format_table(["object", "method", "fingers", "grasps", "count", "median RMSE (mm)", "symmetric (mm)",
-                        "<= 1 mm", "<= 2 mm", "<= 5 mm", "translation (mm)", "rotation (deg)",
+                        "<= 1 mm", "<= 2 mm [95 % interval]", "<= 5 mm", "translation (mm)", "rotation (deg)",
                         "calibration gap, bins >= 10", "NLL of truth", "90 % set holds truth"], rows))
     if calibrations:
         print("\nbelief calibration: predicted P(error <= 2 mm) against the observed share, per bin")

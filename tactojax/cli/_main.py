@@ -10,7 +10,7 @@ from tactojax.cli import (
     _calibrate, _calibrate_belief, _demo, _eval_localization, _eval_shape, _fit_shape, _identify, _info, _localize, _localize_live,
     _map, _record, _repair, _show, _simulate, _train, _train_features,
 )
-from tactojax.cli import _compact, _eval_active, _import_bag, _map_catalog, _view
+from tactojax.cli import _compact, _compare, _eval_active, _import_bag, _map_catalog, _view
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -20,7 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in (_simulate, _info, _train, _eval_shape, _calibrate, _train_features, _map, _map_catalog, _calibrate_belief,
-                   _fit_shape, _show, _eval_localization, _eval_active, _identify, _localize, _record, _localize_live,
+                   _fit_shape, _show, _eval_localization, _eval_active, _compare, _identify, _localize, _record, _localize_live,
                    _demo, _repair, _compact):
         module.add_parser(commands)
     _import_bag.add_parser(commands)

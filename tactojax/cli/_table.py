@@ -41,3 +41,9 @@ def write_json(path: str | Path, payload: dict) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, (json.dumps(payload, indent=2, default=str) + "\n").encode())
+
+
+def share_with_interval(summary: dict) -> str:
+    """An evaluation row's share within 2 mm with its 95 % interval, e.g. ``81 % [64, 91]``."""
+    low, high = summary["within_2mm_interval"]
+    return f"{100 * summary['within_mm']['2']:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief
+from tactojax.localize._compare import share_interval
 from tactojax.localize._compile import top_level_jit
 from tactojax.localize._episode_beliefs import (
     TestEpisodes,
@@ -65,17 +66,22 @@ class EpisodeErrors:
     """(Q,) whether the belief's 90 % credible set holds the truth (within 2 mm; False for the others)."""
 
     def summary(self, *, symmetric: bool = False) -> dict:
-        """JSON-ready medians, shares within 1/2/5 mm and calibration (on the symmetry-aware
-        error where ``symmetric``)."""
+        """JSON-ready medians, shares within 1/2/5 mm (with the 95 % interval of the share within
+        2 mm), calibration (on the symmetry-aware error where ``symmetric``), and every
+        localization's errors and predicted P(within 2 mm), in order, under ``per_localization``
+        (for a paired comparison of two runs on the same test set: :func:`compare_evaluations`)."""
         error = self.symmetric_rmse if symmetric else self.rmse
         out = {"method": self.method, "fingers": self.fingers, "grasps": self.grasps, "fused": self.fused,
                "count": int(len(error)),
                "median_rmse_mm": float(np.median(self.rmse)),
                "median_symmetric_rmse_mm": float(np.median(self.symmetric_rmse)),
                "within_mm": {str(t): float(np.mean(error <= t)) for t in (1, 2, 5)},
+               "within_2mm_interval": share_interval(int(np.sum(error <= WITHIN_MM)), len(error)),
                "median_translation_mm": float(np.median(self.translation)),
-               "median_rotation_deg": float(np.median(self.rotation))}
+               "median_rotation_deg": float(np.median(self.rotation)),
+               "per_localization": {"rmse_mm": self.rmse.tolist(), "symmetric_rmse_mm": self.symmetric_rmse.tolist()}}
         if np.all(np.isfinite(self.probability)):
+            out["per_localization"]["p_within_2mm"] = self.probability.tolist()
             out["calibration"] = calibration(self.probability, error <= WITHIN_MM)
             out["mean_nll_truth"] = float(np.mean(self.nll_truth))
             out["coverage_90"] = float(np.mean(self.covered))

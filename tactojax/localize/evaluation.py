@@ -3,8 +3,9 @@
 Leave-one-out on a map's own imprints (:func:`evaluate_localization`, the paper's Table III),
 *new* grasps that are not in the map (:func:`evaluate_new_grasps`, the headline; the beliefs
 along each episode's touches: :func:`episode_beliefs`), the map-size
-study, identification among maps, and the error metric: the RMSE between a touch's true contact
-cloud at its true and its estimated pose (:func:`moment_rmse`, from the cloud's moments).
+study, identification among maps, the error metric: the RMSE between a touch's true contact
+cloud at its true and its estimated pose (:func:`moment_rmse`, from the cloud's moments), and
+two runs on one test set compared episode by episode (:func:`compare_evaluations`).
 """
 
 from tactojax.localize._active import belief_error as belief_error
@@ -12,6 +13,11 @@ from tactojax.localize._calibrate import fit_found_probability as fit_found_prob
 from tactojax.localize._calibrate import predict_within as predict_within
 from tactojax.localize._calibrate import record_beliefs as record_beliefs
 from tactojax.localize._calibrate import within_log_loss as within_log_loss
+from tactojax.localize._compare import compare_evaluations as compare_evaluations
+from tactojax.localize._compare import format_p as format_p
+from tactojax.localize._compare import paired_log_loss as paired_log_loss
+from tactojax.localize._compare import paired_shares as paired_shares
+from tactojax.localize._compare import share_interval as share_interval
 from tactojax.localize._episode_beliefs import TestEpisodes as TestEpisodes
 from tactojax.localize._episode_beliefs import episode_beliefs as episode_beliefs
 from tactojax.localize._episode_beliefs import sequence_order as sequence_order
@@ -44,11 +50,13 @@ __all__ = [
     "calibration",
     "calibration_gap",
     "cloud_moments",
+    "compare_evaluations",
     "episode_beliefs",
     "evaluate_identification",
     "evaluate_localization",
     "evaluate_new_grasps",
     "fit_found_probability",
+    "format_p",
     "identify_episodes",
     "likely_objects",
     "load_test_episodes",
@@ -57,8 +65,11 @@ __all__ = [
     "maps_in_play",
     "moment_rmse",
     "oracle_imprints",
+    "paired_log_loss",
+    "paired_shares",
     "predict_within",
     "record_beliefs",
     "sequence_order",
+    "share_interval",
     "within_log_loss",
 ]

@@ -59,6 +59,20 @@ def test_new_grasps_fuse_with_the_calibrated_belief(calibrated, tiny_encoder_pat
     bins = result["calibration"]["bins"]
     assert sum(b["count"] for b in bins) == 3 * 2 + 3 * 2  # single touches and fused episodes, every grasp count
     assert all(0.0 <= b["predicted"] <= 1.0 for b in bins if b["count"])
+    for row in result["results"]:  # every localization's error, for a paired comparison of two runs
+        errors = np.asarray(row["per_localization"]["symmetric_rmse_mm"])
+        assert len(errors) == row["count"]
+        assert np.isclose(np.mean(errors <= 2.0), row["within_mm"]["2"])
+        low, high = row["within_2mm_interval"]
+        assert low <= row["within_mm"]["2"] <= high
+        assert ("p_within_2mm" in row["per_localization"]) == (row["method"] == "belief")
+    # A run compared with itself: every row present, no episode gained or lost.
+    assert main(["compare", str(report), str(report), "--json", str(tmp_path / "same.json")]) == 0
+    assert "p (McNemar)" in capsys.readouterr().out
+    same = json.loads((tmp_path / "same.json").read_text())["rows"]
+    assert len(same) == len(result["results"])
+    assert all(r["within_2mm"]["gained"] == r["within_2mm"]["lost"] == 0 and r["within_2mm"]["p"] == 1.0
+               for r in same)
 
 
 def test_calibration_needs_the_objects_grasps(calibrated, tiny_encoder_path, tmp_path, capsys):
