@@ -45,14 +45,14 @@ def run(args) -> int:
         rows.append([c["object"], c["method"], c["fingers"], c["grasps"] if c["fused"] else "1 (each)", c["count"],
                      f"{100 * share['before']:.0f} %", f"{100 * share['after']:.0f} %",
                      f"+{share['gained']} / -{share['lost']}", format_p(share["p"]),
-                     c["median_mm"][0], c["median_mm"][1],
+                     *(c["median_mm"] or ["-", "-"]),
                      "-" if loss is None else f"{loss['before']:.3f} -> {loss['after']:.3f}",
                      "-" if loss is None else format_p(loss["p"])])
     print(format_table(["object", "method", "fingers", "grasps", "count", "<= 2 mm before", "after",
                         "episodes gained / lost", "p (McNemar)", "median before (mm)", "after (mm)",
                         "log loss of P(<= 2 mm)", "p (Wilcoxon)"], rows))
-    print("\nerrors up to symmetry for symmetric objects; p: the chance of a difference at least this large if "
-          "the two runs were equally good (small: a real change)")
+    print("\nerrors up to symmetry for symmetric objects; object all: every object's localizations pooled; p: the "
+          "chance of a difference at least this large if the two runs were equally good (small: a real change)")
     if args.json:
         write_json(args.json, {"before": args.before, "after": args.after, "rows": compared})
     return 0

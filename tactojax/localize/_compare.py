@@ -88,8 +88,10 @@ def compare_evaluations(before: dict, after: dict) -> list[dict]:
     Returns:
         one dict per shared row: ``object``, ``method``, ``fingers``, ``grasps``, ``fused``,
         ``count``, ``within_2mm`` (:func:`paired_shares`, on the symmetry-aware error where
-        the object is symmetric), ``median_mm`` (before, after), and ``log_loss``
-        (:func:`paired_log_loss`) where both runs report P(within 2 mm).
+        the object is symmetric) and ``outcomes`` (each run's, per localization), ``median_mm``
+        (before, after), and ``log_loss`` (:func:`paired_log_loss`) where both runs report
+        P(within 2 mm); then, for every method, fingers and grasps of two or more objects, a
+        row of object ``"all"``: their localizations pooled (``within_2mm`` only).
 
     Raises:
         ValueError: the two share no row, a shared row lacks ``per_localization`` (a JSON written
@@ -118,6 +120,7 @@ def compare_evaluations(before: dict, after: dict) -> list[dict]:
             out = {"object": name, "method": key[0], "fingers": key[1], "grasps": key[2], "fused": key[3],
                    "count": int(len(error_after)),
                    "within_2mm": paired_shares(error_before <= WITHIN_MM, error_after <= WITHIN_MM),
+                   "outcomes": [(error_before <= WITHIN_MM).tolist(), (error_after <= WITHIN_MM).tolist()],
                    "median_mm": [float(np.median(error_before)), float(np.median(error_after))]}
             if "p_within_2mm" in old and "p_within_2mm" in new:
                 out["log_loss"] = paired_log_loss(old["p_within_2mm"], error_before <= WITHIN_MM,
@@ -125,7 +128,24 @@ def compare_evaluations(before: dict, after: dict) -> list[dict]:
             compared.append(out)
     if not compared:
         raise ValueError("the two evaluations share no object and row (method, fingers, grasps)")
-    return compared
+    return compared + _pooled(compared)
+
+
+def _pooled(compared: list[dict]) -> list[dict]:
+    """One row ``object="all"`` per method, fingers and grasps that two or more objects share:
+    their localizations pooled (more pairs, a more sensitive test)."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in compared:
+        groups.setdefault((row["method"], row["fingers"], row["grasps"], row["fused"]), []).append(row)
+    pooled = []
+    for (method, fingers, grasps, fused), rows in groups.items():
+        if len(rows) < 2:
+            continue
+        before = np.concatenate([r["outcomes"][0] for r in rows])
+        after = np.concatenate([r["outcomes"][1] for r in rows])
+        pooled.append({"object": "all", "method": method, "fingers": fingers, "grasps": grasps, "fused": fused,
+                       "count": int(len(after)), "within_2mm": paired_shares(before, after), "median_mm": None})
+    return pooled
 
 
 def format_p(p: float) -> str:

@@ -74,3 +74,13 @@ def test_compare_evaluations_pairs_rows_and_refuses_other_test_sets():
     del old["objects"]["box"]["results"][0]["per_localization"]
     with pytest.raises(ValueError, match="run the evaluation again"):
         compare_evaluations(old, evaluation({1: [1.0]}))
+
+
+def test_compare_evaluations_pools_the_objects():
+    before, after = evaluation({1: [1.0, 3.0]}), evaluation({1: [1.0, 1.0]})
+    before["objects"]["cup"] = before["objects"]["box"]
+    after["objects"]["cup"] = after["objects"]["box"]
+    rows = compare_evaluations(before, after)
+    assert [r["object"] for r in rows] == ["box", "cup", "all"]
+    assert rows[-1]["count"] == 4 and rows[-1]["within_2mm"]["gained"] == 2
+    assert np.isclose(rows[-1]["within_2mm"]["p"], 2 * 0.5**2)
