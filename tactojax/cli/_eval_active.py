@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._maps import add_encoder_argument, is_symmetric
-from tactojax.cli._table import format_table, share_with_interval, write_json
+from tactojax.cli._table import finite_or_none, format_table, share_with_interval, write_json
 
 DEFAULT_POLICIES = "active,random,largest-contact"
 
@@ -131,14 +131,15 @@ def _summarise_object(result, obj, tactile_map, policies, args):
         for k in range(args.max_grasps):
             within = error[:, k] <= 2.0
             summary = {"policy": policy, "grasps": k + 1, "fingers": args.fingers, "count": args.episodes,
-                       "median_rmse_mm": float(np.median(result.rmse[policy][:, k])),
-                       "median_symmetric_rmse_mm": float(np.median(result.symmetric_rmse[policy][:, k])),
+                       "median_rmse_mm": finite_or_none(np.median(result.rmse[policy][:, k])),
+                       "median_symmetric_rmse_mm": finite_or_none(np.median(result.symmetric_rmse[policy][:, k])),
                        "within_mm": {str(t): float(np.mean(error[:, k] <= t)) for t in (1, 2, 5)},
                        "within_2mm_interval": share_interval(int(np.sum(within)), len(within)),
                        "spent_share": float(np.mean(result.spent[policy][:, k])),
                        "calibration": calibration(result.probability[policy][:, k], within),
-                       "per_localization": {"rmse_mm": result.rmse[policy][:, k].tolist(),
-                                            "symmetric_rmse_mm": result.symmetric_rmse[policy][:, k].tolist(),
+                       "per_localization": {"rmse_mm": [finite_or_none(x) for x in result.rmse[policy][:, k]],
+                                            "symmetric_rmse_mm": [finite_or_none(x)
+                                                                  for x in result.symmetric_rmse[policy][:, k]],
                                             "p_within_2mm": result.probability[policy][:, k].tolist(),
                                             "spent": result.spent[policy][:, k].tolist()}}
             summaries.append(summary)

@@ -110,9 +110,11 @@ def should_stop(belief: PoseBelief, threshold: float = 0.95) -> Bool[Array, ""]:
 def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array, ""]:
     """The paper's error of a belief whose object truly sits at ``T_world_object`` (evaluation,
     e.g. on a simulated cell): the RMSE between all its fused touches' contact points placed by
-    its most likely pose and by the truth, up to the object's symmetry, mm."""
+    its most likely pose and by the truth, up to the object's symmetry, mm; +inf for a belief
+    without an estimate (no touch with contact)."""
     T_object_reference = T_world_object.inverse() @ belief.T_world_reference
-    return hypothesis_distances(belief, T_object_reference, symmetric=True)[jnp.argmax(belief.log_weights)]
+    error = hypothesis_distances(belief, T_object_reference, symmetric=True)[jnp.argmax(belief.log_weights)]
+    return jnp.where(jnp.any(jnp.isfinite(belief.log_weights)), error, jnp.inf)
 
 
 def leading_hypotheses(belief: PoseBelief, count: int) -> tuple[jaxlie.SE3, Float[Array, "M"], Float[Array, "M M"]]:

@@ -25,6 +25,7 @@ P(within 2 mm).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -226,7 +227,10 @@ def _fuse_grasp(view: LocalizationMap, belief: PoseBelief, grasp, observe, T_wor
 def _belief_errors(errors, view: LocalizationMap, belief: PoseBelief, T_world_object: jaxlie.SE3,
                    touches: list[tuple], slots: int) -> tuple[float, float]:
     """The cloud RMSE (mm) of the fused touches at the belief's best pose against their true
-    poses, and its symmetry-aware value; ``touches`` padded to ``slots`` (one program for all)."""
+    poses, and its symmetry-aware value; ``touches`` padded to ``slots`` (one program for all);
+    +inf for a belief without an estimate (no touch with contact)."""
+    if not bool(jnp.any(jnp.isfinite(belief.log_weights))):
+        return math.inf, math.inf
     pad = slots - len(touches)
     T_object_sensor, means, covariances = zip(*touches)
     T_true = jaxlie.SE3(jnp.stack([T.wxyz_xyz for T in T_object_sensor] + [jaxlie.SE3.identity().wxyz_xyz] * pad))

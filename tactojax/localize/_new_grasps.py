@@ -51,7 +51,7 @@ class EpisodeErrors:
     fused: bool
     """False: every grasp's sensor-finger touch alone; True: episodes fused over ``grasps`` grasps."""
     rmse: np.ndarray
-    """(Q,) RMSE over the fused touches' true clouds, mm."""
+    """(Q,) RMSE over the fused touches' true clouds, mm (+inf: no estimate, the belief felt no contact)."""
     symmetric_rmse: np.ndarray
     """(Q,) the same, up to the object's symmetries, mm."""
     translation: np.ndarray
@@ -69,23 +69,32 @@ class EpisodeErrors:
         """JSON-ready medians, shares within 1/2/5 mm (with the 95 % interval of the share within
         2 mm), calibration (on the symmetry-aware error where ``symmetric``), and every
         localization's errors and predicted P(within 2 mm), in order, under ``per_localization``
-        (for a paired comparison of two runs on the same test set: :func:`compare_evaluations`)."""
+        (for a paired comparison of two runs on the same test set: :func:`compare_evaluations`).
+        A localization without an estimate (no contact felt) counts as a failure; its error is
+        None in the JSON and ``no_estimate`` counts them."""
         error = self.symmetric_rmse if symmetric else self.rmse
         out = {"method": self.method, "fingers": self.fingers, "grasps": self.grasps, "fused": self.fused,
                "count": int(len(error)),
-               "median_rmse_mm": float(np.median(self.rmse)),
-               "median_symmetric_rmse_mm": float(np.median(self.symmetric_rmse)),
+               "median_rmse_mm": _finite(np.median(self.rmse)),
+               "median_symmetric_rmse_mm": _finite(np.median(self.symmetric_rmse)),
                "within_mm": {str(t): float(np.mean(error <= t)) for t in (1, 2, 5)},
                "within_2mm_interval": share_interval(int(np.sum(error <= WITHIN_MM)), len(error)),
-               "median_translation_mm": float(np.median(self.translation)),
-               "median_rotation_deg": float(np.median(self.rotation)),
-               "per_localization": {"rmse_mm": self.rmse.tolist(), "symmetric_rmse_mm": self.symmetric_rmse.tolist()}}
+               "median_translation_mm": _finite(np.median(self.translation)),
+               "median_rotation_deg": _finite(np.median(self.rotation)),
+               "no_estimate": int(np.sum(~np.isfinite(error))),
+               "per_localization": {"rmse_mm": [_finite(x) for x in self.rmse],
+                                    "symmetric_rmse_mm": [_finite(x) for x in self.symmetric_rmse]}}
         if np.all(np.isfinite(self.probability)):
             out["per_localization"]["p_within_2mm"] = self.probability.tolist()
             out["calibration"] = calibration(self.probability, error <= WITHIN_MM)
             out["mean_nll_truth"] = float(np.mean(self.nll_truth))
             out["coverage_90"] = float(np.mean(self.covered))
         return out
+
+
+def _finite(value) -> float | None:
+    """A float for JSON, None where there is none (+inf: no estimate)."""
+    return float(value) if np.isfinite(value) else None
 
 
 MIN_BIN_COUNT = 10
@@ -199,6 +208,10 @@ def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: Po
             T_true_, mean_, covariance_, valid_ = jax.tree.map(lambda x: x[order], (T_true, mean, covariance, valid))
             errors = _errors(T_true_, belief.sensor_pose(T_true_), mean_, covariance_, valid_, view.symmetries,
                              view.symmetry_axis, view.symmetry_centre)
+            # No touch with contact, no estimate: a failure (its placeholder pose, the identity,
+            # is the truth here, the world frame being the object's).
+            estimated = jnp.any(jnp.isfinite(belief.log_weights))
+            errors = tuple(jnp.where(estimated, e, jnp.inf) for e in errors)
             return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
 
         return jax.vmap(observe)(beliefs, holds)

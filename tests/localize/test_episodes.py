@@ -1,10 +1,13 @@
 """New grasps: the evaluation's single touches, fused episodes and calibration records agree with one another."""
 
+import jax
+import jaxlie
 import numpy as np
 import pytest
 
+from tactojax.localize import empty_belief
 from tactojax.localize._calibrate import predict_within
-from tactojax.localize.evaluation import evaluate_new_grasps, record_beliefs
+from tactojax.localize.evaluation import belief_error, evaluate_new_grasps, record_beliefs
 
 
 @pytest.mark.slow  # ~1 min on 2 cores; tests/cli/test_belief_cli.py runs the evaluation and the calibration
@@ -33,3 +36,23 @@ def test_single_touches_fused_episodes_and_calibration_records_agree(bumps_view,
     expected = np.stack([fused[0].probability, fused[1].probability, single.probability[1::2]], axis=1).reshape(-1)
     np.testing.assert_allclose(predicted, expected, atol=1e-4)
     assert np.all(happened)  # every best hypothesis is within 2 mm of the truth
+
+
+@pytest.mark.slow  # ~1 min on 2 cores
+def test_a_touch_without_contact_is_no_estimate_not_a_perfect_one(bumps_view, bumps_episodes, belief_settings):
+    """Without contact the belief has no estimate; its placeholder pose (the identity) is the
+    truth in the evaluation's object frame, so it must count as a failure, not an error of 0."""
+    blank = bumps_episodes.masks.at[1, 0].set(False)  # the second episode's first grasp felt nothing
+    episodes = bumps_episodes.replace(masks=blank)
+    single, first, both = evaluate_new_grasps(bumps_view, episodes, ("belief",), settings=belief_settings)
+    assert np.isinf(single.rmse[2]) and single.probability[2] == 0.0
+    assert np.all(np.isfinite(np.delete(single.rmse, 2)))
+    assert np.isinf(first.rmse[1]) and np.isfinite(both.rmse[1])  # the second grasp has contact
+    summary = single.summary()
+    assert summary["no_estimate"] == 1 and summary["within_mm"]["2"] == 0.75
+    assert summary["per_localization"]["rmse_mm"][2] is None
+
+
+def test_belief_error_of_a_belief_without_estimate_is_infinite(bumps_view, belief_settings):
+    belief = empty_belief(bumps_view, belief_settings)
+    assert np.isinf(float(jax.jit(belief_error)(belief, jaxlie.SE3.identity())))
