@@ -51,7 +51,7 @@ from tactojax.localize._evaluate import closest_copy_square, cloud_moments, mome
 from tactojax.localize._icp import IcpSettings, icp
 from tactojax.localize._likelihood import LikelihoodSettings, align_depth, log_likelihood
 from tactojax.localize._map import BeliefCalibration, LocalizationMap, Touch
-from tactojax.localize._points import TouchEvidence, touch_evidence
+from tactojax.localize._points import FREE_BAND_MM, TouchEvidence, touch_evidence
 from tactojax.localize._retrieval import rank_imprints
 
 Tree = TypeVar("Tree")
@@ -89,6 +89,9 @@ class BeliefSettings:
     """Contact points of each touch that the likelihood reads."""
     free_points: int = 64
     """No-contact points of each touch's gel plane that the likelihood reads."""
+    free_band_mm: float = FREE_BAND_MM
+    """They are drawn first within this distance of the touch's contact, mm
+    (:data:`~tactojax.localize._points.FREE_BAND_MM`; 0: uniformly over the gel)."""
     refine: int = 32
     """Hypotheses of the pool (the best by likelihood) that ICP refines (16 left a hypothesis
     within 2 mm of the truth unrefined in a fifth of the marker's failures)."""
@@ -582,7 +585,7 @@ def update_belief(
         touch with contact, every hypothesis slot stays empty: no estimate).
     """
     evidence = touch_evidence(touch, view.mm_per_px, contact_count=settings.contact_points,
-                              free_count=settings.free_points)
+                              free_count=settings.free_points, free_band_mm=settings.free_band_mm)
     feature, opening = touch.feature, touch.opening
     before = belief
     first = ~jnp.any(belief.touch_valid)

@@ -152,6 +152,42 @@ def test_likelihood_matches_a_numpy_reference():
         np.testing.assert_allclose(np.asarray(free_ll), expected_free, rtol=1e-5)
 
 
+def test_no_contact_points_are_drawn_beside_the_contact_first():
+    """The band is SciPy's square dilation of the mask; the band's free pixels come first, then
+    the rest of the free pixels; a band of 0 mm draws over the whole pad as before."""
+    from scipy.ndimage import binary_dilation
+
+    from tactojax.localize import Touch
+    from tactojax.localize._points import near_contact
+
+    mask = np.zeros((40, 50), bool)
+    mask[18:21, 30:33] = True  # a pinpoint contact
+    mask[5, 5] = True
+    for radius in (0, 1, 4):
+        expected = binary_dilation(mask, structure=np.ones((2 * radius + 1,) * 2, bool)) if radius else mask
+        np.testing.assert_array_equal(np.asarray(near_contact(jnp.asarray(mask), radius)), expected)
+    mm_per_px, band_mm = 0.2, 1.0  # 5 px
+    band = binary_dilation(mask, structure=np.ones((11, 11), bool)) & ~mask
+    heightmap = jnp.where(jnp.asarray(mask), 0.5, 0.0)
+    touch = Touch(heightmap=heightmap, mask=jnp.asarray(mask), feature=jnp.zeros(4), opening=jnp.float32(10.0))
+    x, y = np.meshgrid((np.arange(50) - 24.5) * mm_per_px, (np.arange(40) - 19.5) * mm_per_px)
+    for count in (32, 256):  # fewer free points than the band holds, and more
+        evidence = touch_evidence(touch, mm_per_px, contact_count=16, free_count=count, free_band_mm=band_mm)
+        free = np.asarray(evidence.free)
+        assert np.all(np.asarray(evidence.free_valid)) and np.allclose(free[:, 2], 0.0)
+        col = np.rint(free[:, 0] / mm_per_px + 24.5).astype(int)
+        row = np.rint(free[:, 1] / mm_per_px + 19.5).astype(int)
+        in_band = band[row, col]
+        assert not mask[row, col].any()
+        assert len(set(zip(row, col))) == count  # without replacement
+        assert in_band[:min(count, band.sum())].all() and not in_band[band.sum():].any()
+    uniform = touch_evidence(touch, mm_per_px, contact_count=16, free_count=256, free_band_mm=0.0)
+    col = np.rint(np.asarray(uniform.free)[:, 0] / mm_per_px + 24.5).astype(int)
+    row = np.rint(np.asarray(uniform.free)[:, 1] / mm_per_px + 19.5).astype(int)
+    assert band[row, col].mean() < 0.5  # the band is a tenth of the pad
+    assert np.allclose(x[row, col], np.asarray(uniform.free)[:, 0]) and np.allclose(y[row, col], np.asarray(uniform.free)[:, 1])
+
+
 def test_one_touch_off_the_grid_is_found(bumps_view, synthetic, belief_settings):
     view = bumps_view
     T_true = synthetic.sensor_pose(1.5, -1.0)  # between grid presses (4 x 3 mm apart)
