@@ -185,7 +185,8 @@ def test_no_contact_points_are_drawn_beside_the_contact_first():
     col = np.rint(np.asarray(uniform.free)[:, 0] / mm_per_px + 24.5).astype(int)
     row = np.rint(np.asarray(uniform.free)[:, 1] / mm_per_px + 19.5).astype(int)
     assert band[row, col].mean() < 0.5  # the band is a tenth of the pad
-    assert np.allclose(x[row, col], np.asarray(uniform.free)[:, 0]) and np.allclose(y[row, col], np.asarray(uniform.free)[:, 1])
+    free = np.asarray(uniform.free)
+    assert np.allclose(x[row, col], free[:, 0]) and np.allclose(y[row, col], free[:, 1])
 
 
 def test_one_touch_off_the_grid_is_found(bumps_view, synthetic, belief_settings):
