@@ -28,7 +28,7 @@ contact (along rows and columns: a square neighbourhood), mm. There they tell wh
 object's edges are not: a pose that slid the object a few millimetres would press the gel just
 beside the contact, while the free pixels far from it stay free under every pose near the truth
 (the paper's negative information, section VIII). Drawn uniformly over the whole pad, most of the
-64 no-contact points fell there and said nothing."""
+64 no-contact points fell far from the contact and said nothing."""
 
 
 @functools.lru_cache(maxsize=8)
