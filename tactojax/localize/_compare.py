@@ -72,6 +72,11 @@ def paired_log_loss(p_before: np.ndarray, happened_before: np.ndarray, p_after: 
     return {"before": float(np.mean(before)), "after": float(np.mean(after)), "p": p}
 
 
+def _errors(values: list) -> np.ndarray:
+    """(N,) errors, mm, from a JSON list: None (no estimate) is a failure, +inf."""
+    return np.array([np.inf if value is None else value for value in values], np.float64)
+
+
 def _row_key(row: dict) -> tuple:
     """What identifies a row of an evaluation's JSON: the method or policy, fingers, grasps,
     and whether its localizations are fused episodes or single touches."""
@@ -113,7 +118,7 @@ def compare_evaluations(before: dict, after: dict) -> list[dict]:
                 raise ValueError(f"{name}, {key[0]}: a row without per-localization errors (written by an "
                                  "older tactojax): run the evaluation again")
             error_key = "symmetric_rmse_mm" if symmetric else "rmse_mm"
-            error_before, error_after = np.asarray(old[error_key]), np.asarray(new[error_key])
+            error_before, error_after = _errors(old[error_key]), _errors(new[error_key])
             if error_before.shape != error_after.shape:
                 raise ValueError(f"{name}, {key[0]}, {key[2]} grasp(s): {len(error_before)} localizations "
                                  f"against {len(error_after)}: not the same test set")

@@ -63,6 +63,11 @@ def test_compare_evaluations_pairs_rows_and_refuses_other_test_sets():
     assert (row["within_2mm"]["gained"], row["within_2mm"]["lost"]) == (2, 0)
     assert row["median_mm"] == [3.0, 1.0]
     assert "log_loss" in row
+    # A localization without an estimate (None in the JSON) is a failure.
+    missing = evaluation({1: [1.0, 1.0, 1.0]})
+    missing["objects"]["box"]["results"][0]["per_localization"]["rmse_mm"][0] = None
+    [row] = compare_evaluations(before, missing)
+    assert (row["within_2mm"]["gained"], row["within_2mm"]["lost"]) == (2, 1)
     # Symmetric objects are judged on the symmetry-aware error (here every error below 1 mm).
     [row] = compare_evaluations(evaluation({1: [1.0, 3.0, 4.0]}, True), evaluation({1: [1.0, 1.0, 1.0]}, True))
     assert row["within_2mm"]["gained"] == row["within_2mm"]["lost"] == 0
