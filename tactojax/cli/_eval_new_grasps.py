@@ -48,8 +48,8 @@ def run_new_grasps(args) -> int:
         fused = [(r, s) for r, s in zip(results, summaries) if r.fused]
         key = "median_symmetric_rmse_mm" if symmetric else "median_rmse_mm"
         curves[f"{tactile_map.object_id}, {args.fingers} finger{'s' * (args.fingers > 1)}"] = {
-            "grasps": [r.grasps for r, _ in fused], "median_mm": [s[key] for _, s in fused],
-            "single": {r.method: s[key] for r, s in zip(results, summaries) if not r.fused}}
+            "grasps": [r.grasps for r, _ in fused], "median_mm": [_plotted(s[key]) for _, s in fused],
+            "single": {r.method: _plotted(s[key]) for r, s in zip(results, summaries) if not r.fused}}
         beliefs = [r for r in results if r.method == "belief"]
         if beliefs:
             error = np.concatenate([r.symmetric_rmse if symmetric else r.rmse for r in beliefs])
@@ -79,3 +79,9 @@ def run_new_grasps(args) -> int:
     if args.json:
         write_json(args.json, payload)
     return 0
+
+
+def _plotted(median: float | None) -> float:
+    """A median for the figure: NaN (not drawn) where there is none (most localizations without
+    an estimate)."""
+    return float("nan") if median is None else median
