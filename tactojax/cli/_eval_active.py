@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from tactojax.cli._maps import add_encoder_argument, is_symmetric
-from tactojax.cli._table import finite_or_none, format_table, share_with_interval, write_json
+from tactojax.cli._table import format_table, share_with_interval, write_json
 
 DEFAULT_POLICIES = "active,random,largest-contact"
 
@@ -121,6 +121,7 @@ def _summarise_object(result, obj, tactile_map, policies, args):
     tables, and its curves of the share within 2 mm against grasps (one per policy)."""
     import numpy as np
 
+    from tactojax.localize._compare import finite_or_none
     from tactojax.localize.evaluation import calibration, calibration_gap, share_interval
 
     rows, stop_rows, curves = [], [], {}

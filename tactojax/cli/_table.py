@@ -47,10 +47,3 @@ def share_with_interval(summary: dict) -> str:
     """An evaluation row's share within 2 mm with its 95 % interval, e.g. ``81 % [64, 91]``."""
     low, high = summary["within_2mm_interval"]
     return f"{100 * summary['within_mm']['2']:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
-
-
-def finite_or_none(value) -> float | None:
-    """A float for JSON, None where it is not finite (an error of +inf: no estimate)."""
-    import math
-
-    return float(value) if math.isfinite(value) else None

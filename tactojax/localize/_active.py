@@ -114,7 +114,7 @@ def belief_error(belief: PoseBelief, T_world_object: jaxlie.SE3) -> Float[Array,
     without an estimate (no touch with contact)."""
     T_object_reference = T_world_object.inverse() @ belief.T_world_reference
     error = hypothesis_distances(belief, T_object_reference, symmetric=True)[jnp.argmax(belief.log_weights)]
-    return jnp.where(jnp.any(jnp.isfinite(belief.log_weights)), error, jnp.inf)
+    return jnp.where(belief.has_estimate, error, jnp.inf)
 
 
 def leading_hypotheses(belief: PoseBelief, count: int) -> tuple[jaxlie.SE3, Float[Array, "M"], Float[Array, "M M"]]:

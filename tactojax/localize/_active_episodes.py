@@ -229,7 +229,7 @@ def _belief_errors(errors, view: LocalizationMap, belief: PoseBelief, T_world_ob
     """The cloud RMSE (mm) of the fused touches at the belief's best pose against their true
     poses, and its symmetry-aware value; ``touches`` padded to ``slots`` (one program for all);
     +inf for a belief without an estimate (no touch with contact)."""
-    if not bool(jnp.any(jnp.isfinite(belief.log_weights))):
+    if not bool(belief.has_estimate):
         return math.inf, math.inf
     pad = slots - len(touches)
     T_object_sensor, means, covariances = zip(*touches)

@@ -187,6 +187,12 @@ class PoseBelief:
         """How many touches the belief holds."""
         return jnp.sum(self.touch_valid)
 
+    @property
+    def has_estimate(self) -> Bool[Array, ""]:
+        """Whether it holds any hypothesis (False until a touch felt contact: :attr:`best` is then a
+        placeholder, the identity)."""
+        return jnp.any(jnp.isfinite(self.log_weights))
+
     # The queries below are jitted (one program each, not dozens of dispatched operations: a
     # notebook's call takes a fraction of a millisecond once compiled); inside jit they inline.
 

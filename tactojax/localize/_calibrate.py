@@ -177,10 +177,16 @@ PROBABILITY_FLOOR = 1e-4
 """Probabilities are clipped to [floor, 1 - floor] in the losses: one belief cannot dominate a fit."""
 
 
+def log_losses(probability: np.ndarray, happened: np.ndarray, floor: float = PROBABILITY_FLOOR) -> np.ndarray:
+    """(N,) negative log-likelihood of what happened (bool) under each predicted probability,
+    clipped to ``[floor, 1 - floor]``."""
+    p = np.clip(np.asarray(probability, np.float64), floor, 1 - floor)
+    return -np.where(np.asarray(happened, bool), np.log(p), np.log1p(-p))
+
+
 def within_log_loss(probability: np.ndarray, happened: np.ndarray) -> float:
     """Mean negative log-likelihood of what happened under the predicted probabilities."""
-    p = np.clip(probability, PROBABILITY_FLOOR, 1 - PROBABILITY_FLOOR)
-    return float(-np.mean(np.where(happened, np.log(p), np.log1p(-p))))
+    return float(np.mean(log_losses(probability, happened)))
 
 
 def truth_log_loss(mass: np.ndarray) -> float:

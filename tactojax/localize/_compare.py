@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from tactojax.localize._belief import WITHIN_MM
+from tactojax.localize._calibrate import log_losses
 
 LEVEL = 0.95
 """Confidence level of the reported intervals."""
@@ -23,6 +24,11 @@ LEVEL = 0.95
 PROBABILITY_FLOOR = 1e-3
 """Predicted probabilities are clipped to [floor, 1 - floor] in the log loss (one confident
 miss must not decide a comparison of dozens)."""
+
+
+def finite_or_none(value) -> float | None:
+    """A float for JSON, None where it is not finite (an error of +inf: no estimate)."""
+    return float(value) if math.isfinite(value) else None
 
 
 def share_interval(successes: int, count: int, level: float = LEVEL) -> list[float] | None:
@@ -52,17 +58,12 @@ def paired_shares(before: np.ndarray, after: np.ndarray) -> dict:
             "p": p}
 
 
-def log_loss(probability: np.ndarray, happened: np.ndarray) -> np.ndarray:
-    """(N,) log loss, nats, of predicting ``probability`` for events that ``happened`` (bool)."""
-    probability = np.clip(np.asarray(probability, np.float64), PROBABILITY_FLOOR, 1 - PROBABILITY_FLOOR)
-    return -np.where(np.asarray(happened, bool), np.log(probability), np.log1p(-probability))
-
-
 def paired_log_loss(p_before: np.ndarray, happened_before: np.ndarray, p_after: np.ndarray,
                     happened_after: np.ndarray) -> dict:
     """The mean log loss of two runs' P(within 2 mm), episode by episode, and the two-sided
     p-value of Wilcoxon's signed-rank test on their differences (1.0 when none differs)."""
-    before, after = log_loss(p_before, happened_before), log_loss(p_after, happened_after)
+    before = log_losses(p_before, happened_before, PROBABILITY_FLOOR)
+    after = log_losses(p_after, happened_after, PROBABILITY_FLOOR)
     differences = after - before
     p = 1.0
     if np.any(np.abs(differences) > 1e-9):

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 from tactojax.localize._baselines import baseline_estimate, parse_method
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief
-from tactojax.localize._compare import share_interval
+from tactojax.localize._compare import finite_or_none, share_interval
 from tactojax.localize._compile import top_level_jit
 from tactojax.localize._episode_beliefs import (
     TestEpisodes,
@@ -75,26 +75,21 @@ class EpisodeErrors:
         error = self.symmetric_rmse if symmetric else self.rmse
         out = {"method": self.method, "fingers": self.fingers, "grasps": self.grasps, "fused": self.fused,
                "count": int(len(error)),
-               "median_rmse_mm": _finite(np.median(self.rmse)),
-               "median_symmetric_rmse_mm": _finite(np.median(self.symmetric_rmse)),
+               "median_rmse_mm": finite_or_none(np.median(self.rmse)),
+               "median_symmetric_rmse_mm": finite_or_none(np.median(self.symmetric_rmse)),
                "within_mm": {str(t): float(np.mean(error <= t)) for t in (1, 2, 5)},
                "within_2mm_interval": share_interval(int(np.sum(error <= WITHIN_MM)), len(error)),
-               "median_translation_mm": _finite(np.median(self.translation)),
-               "median_rotation_deg": _finite(np.median(self.rotation)),
+               "median_translation_mm": finite_or_none(np.median(self.translation)),
+               "median_rotation_deg": finite_or_none(np.median(self.rotation)),
                "no_estimate": int(np.sum(~np.isfinite(error))),
-               "per_localization": {"rmse_mm": [_finite(x) for x in self.rmse],
-                                    "symmetric_rmse_mm": [_finite(x) for x in self.symmetric_rmse]}}
+               "per_localization": {"rmse_mm": [finite_or_none(x) for x in self.rmse],
+                                    "symmetric_rmse_mm": [finite_or_none(x) for x in self.symmetric_rmse]}}
         if np.all(np.isfinite(self.probability)):
             out["per_localization"]["p_within_2mm"] = self.probability.tolist()
             out["calibration"] = calibration(self.probability, error <= WITHIN_MM)
             out["mean_nll_truth"] = float(np.mean(self.nll_truth))
             out["coverage_90"] = float(np.mean(self.covered))
         return out
-
-
-def _finite(value) -> float | None:
-    """A float for JSON, None where there is none (+inf: no estimate)."""
-    return float(value) if np.isfinite(value) else None
 
 
 MIN_BIN_COUNT = 10
@@ -210,8 +205,7 @@ def _observe_episodes(view: LocalizationMap, episodes: TestEpisodes, beliefs: Po
                              view.symmetry_axis, view.symmetry_centre)
             # No touch with contact, no estimate: a failure (its placeholder pose, the identity,
             # is the truth here, the world frame being the object's).
-            estimated = jnp.any(jnp.isfinite(belief.log_weights))
-            errors = tuple(jnp.where(estimated, e, jnp.inf) for e in errors)
+            errors = tuple(jnp.where(belief.has_estimate, e, jnp.inf) for e in errors)
             return (*errors, belief.probability_within(), *belief.truth_scores(belief.T_world_reference))
 
         return jax.vmap(observe)(beliefs, holds)
