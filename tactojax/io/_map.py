@@ -8,7 +8,10 @@ symmetry group, :meth:`~tactojax.objects.ObjectSymmetry.to_json`) when the map r
 contact mask in the sign bit; ``point_pixels`` (K, P) uint16 (int32 past 65536 pixels), the
 contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32
 (quaternion wxyz, then xyz in mm); ``openings`` (K,) float32 mm; ``features`` (K, F) float32;
-``imprint_valid`` (K,) bool; and, only when kept, ``images`` (K, H, W, 3) uint8. The metadata's
+``imprint_valid`` (K,) bool; and, only when kept, ``images`` (K, H, W, 3) uint8 and
+``surface_pixels`` (K, S) uint16/int32 with ``surface_valid`` (K, S) bool, the pixels of the whole
+predicted contact mask the surface is built from (maps written before them build it from the
+contact points). The metadata's
 ``features_encoder`` names the encoder of the stored features.
 
 The map's surface (:class:`~tactojax.localize.MapSurface`, what localization reads; optional, maps
@@ -55,6 +58,7 @@ _DTYPES = {
     2: {"packed_heightmaps": np.float16, "point_pixels": [np.uint16, np.int32], **_COMMON},
 }
 _OPTIONAL = {"images": np.uint8}  # version 2
+_SURFACE_PIXELS = {"surface_pixels": [np.uint16, np.int32], "surface_valid": np.bool_}  # version 2, both or neither
 _SURFACE = {"surface_blocks": np.float32, "surface_block_index": np.int32}
 
 
@@ -82,6 +86,8 @@ def save_tactile_map(path, tactile_map: TactileMap, *, metadata: dict | None = N
     arrays = {name: np.asarray(getattr(tactile_map, name)) for name in _DTYPES[MAP_VERSION]
               if name != "T_object_sensor"}
     arrays["T_object_sensor"] = np.asarray(tactile_map.T_object_sensor.wxyz_xyz, np.float32)
+    if tactile_map.surface_pixels is not None:
+        arrays.update({name: np.asarray(getattr(tactile_map, name)) for name in _SURFACE_PIXELS})
     if tactile_map.images is not None:
         arrays["images"] = np.asarray(tactile_map.images, np.uint8)
     if surface:
@@ -117,7 +123,8 @@ def _read_npz(path: Path, *, arrays: bool = True, images: bool = True,
 
 
 def _check_arrays(path: Path, version: int, arrays: dict[str, np.ndarray]) -> None:
-    dtypes = _DTYPES[version] | (_OPTIONAL if "images" in arrays else {})
+    dtypes = (_DTYPES[version] | (_OPTIONAL if "images" in arrays else {})
+              | (_SURFACE_PIXELS if set(_SURFACE_PIXELS) & set(arrays) else {}))
     missing = sorted(set(dtypes) - set(arrays) - {"images"})
     if missing:
         raise CorruptMapError(f"{path}: missing arrays {missing}")
@@ -136,12 +143,17 @@ def _check_arrays(path: Path, version: int, arrays: dict[str, np.ndarray]) -> No
         "valid": (count, points), "T_object_sensor": (count, 7), "openings": (count,),
         "features": (count, features), "imprint_valid": (count,),
     }
+    if "surface_pixels" in arrays:
+        expected["surface_valid"] = arrays["surface_pixels"].shape
+        if arrays["surface_pixels"].ndim != 2 or len(arrays["surface_pixels"]) != count:
+            raise CorruptMapError(f"{path}: surface_pixels {arrays['surface_pixels'].shape} is not ({count}, S)")
     wrong = [f"{name} {arrays[name].shape} (expected {shape})" for name, shape in expected.items()
              if name in arrays and arrays[name].shape != shape]
     if wrong:
         raise CorruptMapError(f"{path}: array shapes disagree: {'; '.join(wrong)}")
-    if version == 2 and arrays["point_pixels"].size and int(arrays["point_pixels"].max()) >= height * width:
-        raise CorruptMapError(f"{path}: point_pixels index past the {height} x {width} image")
+    for name in ("point_pixels", "surface_pixels"):
+        if version == 2 and name in arrays and arrays[name].size and int(arrays[name].max()) >= height * width:
+            raise CorruptMapError(f"{path}: {name} index past the {height} x {width} image")
 
 
 def _compact_arrays(path: Path, header: dict, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -1,9 +1,10 @@
 """The whole map's surface as one signed-distance grid: where a touch fits, at any pose.
 
-Every contact point a map stores (its tactile map's sampled points, object frame, with their
-normals) that the gel felt deeper than ``min_depth_mm`` is a small planar sample of the object's
-surface. :func:`build_map_surface` turns them into a dense grid over the object: at every cell
-within ``reach_mm`` of a stored point, the *signed* distance from the cell to the tangent plane
+Every surface pixel a map stores (sampled from each imprint's whole predicted contact mask,
+:attr:`~tactojax.mapping.TactileMap.surface_pixels`; the contact points of a map that keeps
+none), placed in the object frame with its normal, that the gel felt deeper than
+``min_depth_mm`` is a small planar sample of the object's surface. :func:`build_map_surface`
+turns them into a dense grid over the object: at every cell within ``reach_mm`` of a stored point, the *signed* distance from the cell to the tangent plane
 of its nearest stored point (positive outside the object, along the stored normal; NaN farther
 away: the map says nothing there).
 A touch is then scored at any hypothesis by one trilinear look-up per point, the opposite
@@ -178,19 +179,20 @@ class MapSurface:
 def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = SurfaceSettings(), *,
                       exclude: int | np.ndarray = -1, grid_like: MapSurface | None = None,
                       geometry: dict[str, np.ndarray] | None = None) -> MapSurface:
-    """The signed-distance grid of a map's stored contact points (see the module docstring).
+    """The signed-distance grid of a map's surface pixels (see the module docstring).
 
     Args:
-        tactile_map: the map (its ``points``, ``normals``, ``valid`` and poses are read; points
-            indented less than ``settings.min_depth_mm`` are left out).
+        tactile_map: the map: its surface pixels (:attr:`~tactojax.mapping.TactileMap.surface_pixels`,
+            drawn from the whole predicted contact mask; its contact points when it keeps none)
+            and poses are read; points indented less than ``settings.min_depth_mm`` are left out.
         settings: grid pitch, reach and margin.
         exclude: an imprint left out (leave-one-out), -1 for none, or a (K,) mask of imprints
             left out (a held-out fold).
         grid_like: build on this surface's grid (origin, shape and pitch), padded to its count
             of stored blocks where it needs no more: a surface of the same map without some
             imprints then has the same shapes (no recompilation).
-        geometry: the map's :meth:`~tactojax.mapping.TactileMap.host_geometry`, when decoded
-            before (else decoded now).
+        geometry: the map's :meth:`~tactojax.mapping.TactileMap.host_geometry` with
+            ``surface=True``, when decoded before (else decoded now).
 
     Returns:
         the :class:`MapSurface` (an empty map gives a one-cell grid that knows nothing).
@@ -198,9 +200,9 @@ def build_map_surface(tactile_map: TactileMap, settings: SurfaceSettings = Surfa
     from scipy.ndimage import binary_dilation
     from scipy.spatial import cKDTree
 
-    geometry = tactile_map.host_geometry() if geometry is None else geometry
+    geometry = tactile_map.host_geometry(surface=True) if geometry is None else geometry
     depth = -geometry["points"][..., 2]  # a sensor-frame contact point sits at z = -indentation
-    valid = np.asarray(tactile_map.valid) & np.asarray(tactile_map.imprint_valid)[:, None] & (depth >= settings.min_depth_mm)
+    valid = geometry["valid"] & (depth >= settings.min_depth_mm)
     if np.ndim(exclude) == 1:
         valid[np.asarray(exclude, bool)] = False
     elif exclude >= 0:

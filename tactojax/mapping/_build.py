@@ -181,12 +181,19 @@ def sample_contact_points(
 
 @functools.partial(jax.jit, static_argnames=("count", "observed_only"))
 def _predict_and_sample(model: ShapeModel, keys, images, count: int, observed_only: bool):
-    heightmaps, masks = predict_batch(model, images)
+    """(packed heightmaps, contact pixels and validity, surface pixels and validity) of a batch;
+    the surface pixels are sampled from the whole predicted mask (the contact pixels' mask without
+    ``observed_only``)."""
+    heightmaps, predicted = predict_batch(model, images)
+    masks = predicted
     if observed_only:
         observe = jax.vmap(observed_contact, in_axes=(0, None, 0, None))
-        masks = observe(images, model.background, masks, model.mm_per_px)
-    pixels, valid = jax.vmap(sample_contact_pixels, in_axes=(0, 0, None))(keys, masks, count)
-    return pack_heightmaps(heightmaps, masks), pixels, valid
+        masks = observe(images, model.background, predicted, model.mm_per_px)
+    sample = jax.vmap(sample_contact_pixels, in_axes=(0, 0, None))
+    pixels, valid = sample(keys, masks, count)
+    surface_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
+    surface_pixels, surface_valid = sample(surface_keys, predicted, count)
+    return pack_heightmaps(heightmaps, masks), pixels, valid, surface_pixels, surface_valid
 
 
 def build_tactile_map(
@@ -218,8 +225,11 @@ def build_tactile_map(
         T_world_object: (K,) object poses (the mapping protocol turns the object); default
             identity, i.e. the map frame is the world frame.
         points_per_imprint: P, contact points sampled per imprint.
-        observed_only: keep only contact the image observes (:func:`observed_contact`); the
-            stored masks are then those observed masks.
+        observed_only: keep only contact the image observes (:func:`observed_contact`) for the
+            contact points; the stored masks are then those observed masks. The surface
+            pixels (:attr:`TactileMap.surface_pixels`) are drawn from the whole predicted mask
+            either way (without ``observed_only`` the map keeps none: they would be the contact
+            points' kind).
         batch_size: images per prediction batch (the last batch is padded, so one compile).
         key: PRNG key for the point sampling (default ``jax.random.key(0)``).
         keep_images: keep the images in the map (features from another encoder need them).
@@ -247,14 +257,15 @@ def build_tactile_map(
         parts.append([np.asarray(x)[:keep] for x in outputs])
         bar.update(keep)
     bar.close()
-    packed, pixels, valid = (np.concatenate(column) for column in zip(*parts))
+    packed, pixels, valid, surface_pixels, surface_valid = (np.concatenate(column) for column in zip(*parts))
+    index_dtype = pixel_index_dtype(*packed.shape[1:])
     T_object_sensor = sensor_pose(T_world_gripper, jnp.asarray(openings, jnp.float32))
     if T_world_object is not None:
         T_object_sensor = T_world_object.inverse() @ T_object_sensor
     return TactileMap(
         images=jnp.asarray(uint8) if keep_images else None,
         packed_heightmaps=jnp.asarray(packed),
-        point_pixels=jnp.asarray(pixels.astype(pixel_index_dtype(*packed.shape[1:]))),
+        point_pixels=jnp.asarray(pixels.astype(index_dtype)),
         valid=jnp.asarray(valid),
         T_object_sensor=T_object_sensor,
         openings=jnp.asarray(openings, jnp.float32),
@@ -263,4 +274,6 @@ def build_tactile_map(
         object_id=object_id,
         mm_per_px=float(model.mm_per_px),
         sensor=model.sensor,
+        surface_pixels=jnp.asarray(surface_pixels.astype(index_dtype)) if observed_only else None,
+        surface_valid=jnp.asarray(surface_valid) if observed_only else None,
     )

@@ -39,7 +39,7 @@ class TactileMap:
     Shapes are fixed (K imprints, P points each, padding masked by ``imprint_valid`` and
     ``valid``) so that everything that reads a map jits once per map size.
 
-    The imprints are stored compactly (about 42 kB each for a 120 x 160 px sensor and P = 1024,
+    The imprints are stored compactly (about 45 kB each for a 120 x 160 px sensor and P = 1024,
     see :mod:`tactojax.mapping._packing`): heightmaps and masks packed into one float16 array,
     points as pixel indices; ``heightmaps``, ``masks``, ``points`` and ``normals`` decode them.
     """
@@ -73,6 +73,17 @@ class TactileMap:
     """The object's symmetry group as recorded when it was mapped (declared by the catalog,
     measured from a mesh: :func:`~tactojax.objects.detect_symmetry`); None for a map that
     recorded none (then the catalog's, by object id: :attr:`object_symmetry`)."""
+    surface_pixels: Int[Array, "K S"] | None = None
+    """S pixels per imprint sampled from the shape model's *whole* predicted contact mask, which the
+    map's surface (:func:`~tactojax.localize.build_map_surface`) is built from; None for a map
+    written before they were kept (its surface then comes from the contact points). The contact
+    points keep only the contact the image observes (:func:`~tactojax.mapping.observed_contact`):
+    retrieval and registration must not lean on the false plateaus a misjudged edge leaves. The
+    surface is better served by all of it: on a flat face the observed contact is a band along the
+    visible edges, so a map of observed contact only knew 57 % of the gum box's surface, and a
+    touch reaching past what it knew was scored as floating in space."""
+    surface_valid: Bool[Array, "K S"] | None = None
+    """Which of the S surface pixels are real (None with ``surface_pixels``)."""
 
     def __len__(self) -> int:
         return int(self.openings.shape[0])
@@ -134,26 +145,38 @@ class TactileMap:
         """Unit normals in the map (object) frame."""
         return jax.vmap(lambda T, n: T.rotation() @ n)(self.T_object_sensor, self.normals)
 
-    def host_geometry(self, chunk: int = 64) -> dict[str, np.ndarray]:
+    def host_geometry(self, chunk: int = 64, *, surface: bool = False) -> dict[str, np.ndarray]:
         """The decoded contact points as NumPy arrays, computed ``chunk`` imprints at a time (the
         last chunk padded): one compilation serves every map of one image size and point count,
         where the properties compile once per map size K (a catalog of maps of different sizes
         would compile one program per map).
 
+        Args:
+            chunk: imprints decoded per call.
+            surface: decode the surface pixels instead (:attr:`surface_pixels`; the contact
+                points for a map without them), with their validity as ``"valid"``.
+
         Returns:
             ``{"points", "normals"}`` (K, P, 3) in the sensor frame and ``{"points_object",
-            "normals_object"}`` (K, P, 3) in the object frame, float32, mm.
+            "normals_object"}`` (K, P, 3) in the object frame, float32, mm; with ``surface``, also
+            ``"valid"`` (K, S) (real imprints only).
         """
+        pixels, valid = ((self.surface_pixels, self.surface_valid) if surface and self.surface_pixels is not None
+                         else (self.point_pixels, self.valid))
         count, parts = len(self), []
-        arrays = [np.asarray(x) for x in (self.packed_heightmaps, self.point_pixels, self.T_object_sensor.wxyz_xyz)]
+        arrays = [np.asarray(x) for x in (self.packed_heightmaps, pixels, self.T_object_sensor.wxyz_xyz)]
         for start in range(0, count, chunk):
             index = np.minimum(np.arange(start, start + chunk), count - 1)  # host indexing: no program per K
             outputs = _decode_in_object_frame(*(jnp.asarray(x[index]) for x in arrays), self.mm_per_px)
             parts.append([np.asarray(x)[:min(chunk, count - start)] for x in outputs])
         names = ("points", "normals", "points_object", "normals_object")
-        if not parts:
-            return {name: np.zeros((0, self.valid.shape[1], 3), np.float32) for name in names}
-        return {name: np.concatenate(column) for name, column in zip(names, zip(*parts))}
+        if parts:
+            geometry = {name: np.concatenate(column) for name, column in zip(names, zip(*parts))}
+        else:
+            geometry = {name: np.zeros((0, pixels.shape[1], 3), np.float32) for name in names}
+        if surface:
+            geometry["valid"] = np.asarray(valid) & np.asarray(self.imprint_valid)[:, None]
+        return geometry
 
     @property
     def point_valid(self) -> Bool[Array, "K P"]:

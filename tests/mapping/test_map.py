@@ -52,6 +52,33 @@ def test_map_points_lie_on_the_true_surface(cylinder_map):
     assert np.median(np.sum(gradient * normals, axis=1)) > 0.9
 
 
+def test_surface_pixels_come_from_the_whole_predicted_mask(cylinder_map, mapping_dataset, lookup_model):
+    from tactojax.io import read_grasps
+    from tactojax.localize import build_map_surface
+    from tactojax.shape import predict_batch
+
+    images = read_grasps(mapping_dataset)["images"][:6]
+    _, predicted = predict_batch(lookup_model, jnp.asarray(images, jnp.float32) / 255.0)
+    surface_pixels, surface_valid = (np.asarray(x)[:6] for x in (cylinder_map.surface_pixels,
+                                                                 cylinder_map.surface_valid))
+    predicted = np.asarray(predicted).reshape(6, -1)
+    # Every real surface pixel lies in the predicted mask; the contact points' mask (the observed
+    # part of it) is a subset, so there are at least as many surface pixels as contact points.
+    assert np.all(np.take_along_axis(predicted, surface_pixels.astype(int), axis=1)[surface_valid])
+    assert np.all(predicted[np.asarray(cylinder_map.masks[:6]).reshape(6, -1)])
+    assert np.all(surface_valid.sum(axis=1) >= np.asarray(cylinder_map.valid[:6]).sum(axis=1))
+    # Decoded, they lie on the cylinder (its exact signed distance, an independent reference).
+    geometry = cylinder_map.host_geometry(surface=True)
+    deep = geometry["valid"] & (geometry["points"][..., 2] <= -0.3)
+    distance = surface_distance(get_object("cylinder"), geometry["points_object"][deep])
+    assert distance["median"] < 0.25
+    # A map without surface pixels (written before them) builds its surface from its contact points.
+    older = build_map_surface(cylinder_map.replace(surface_pixels=None, surface_valid=None))
+    as_contact = build_map_surface(cylinder_map.replace(surface_pixels=cylinder_map.point_pixels,
+                                                        surface_valid=cylinder_map.valid))
+    np.testing.assert_array_equal(np.asarray(older.blocks), np.asarray(as_contact.blocks))
+
+
 def test_sample_contact_points_draws_from_the_mask():
     heightmap = jnp.asarray(np.random.default_rng(0).uniform(0, 1, (12, 16)), jnp.float32)
     mask = jnp.zeros((12, 16), bool).at[3:6, 4:9].set(True)  # 15 contact pixels
@@ -100,6 +127,15 @@ def test_save_load_round_trip_and_clear_errors(cylinder_map, tmp_path):
     save_tactile_map(tmp_path / "wrong.npz", wrong, surface=False)  # a file whose arrays disagree
     with pytest.raises(CorruptMapError, match="valid"):
         load_tactile_map(tmp_path / "wrong.npz")
+    height, width = cylinder_map.image_shape
+    past = cylinder_map.replace(surface_pixels=cylinder_map.surface_pixels.at[0, 0].set(height * width))
+    save_tactile_map(tmp_path / "past.npz", past, surface=False)
+    with pytest.raises(CorruptMapError, match="surface_pixels index past"):
+        load_tactile_map(tmp_path / "past.npz")
+    half = cylinder_map.replace(surface_valid=cylinder_map.surface_valid[:, :10])
+    save_tactile_map(tmp_path / "half.npz", half, surface=False)
+    with pytest.raises(CorruptMapError, match="surface_valid"):
+        load_tactile_map(tmp_path / "half.npz")
 
 
 def test_a_localization_map_gets_its_features_and_its_stored_calibration(cylinder_map, tiny_encoder_path, tmp_path):
