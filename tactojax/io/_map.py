@@ -8,11 +8,11 @@ symmetry group, :meth:`~tactojax.objects.ObjectSymmetry.to_json`) when the map r
 contact mask in the sign bit; ``point_pixels`` (K, P) uint16 (int32 past 65536 pixels), the
 contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32
 (quaternion wxyz, then xyz in mm); ``openings`` (K,) float32 mm; ``features`` (K, F) float32;
-``imprint_valid`` (K,) bool; and, only when kept, ``images`` (K, H, W, 3) uint8 and
-``surface_pixels`` (K, S) uint16/int32 with ``surface_valid`` (K, S) bool, the pixels of the whole
-predicted contact mask the surface is built from (maps written before them build it from the
-contact points). The metadata's
-``features_encoder`` names the encoder of the stored features.
+``imprint_valid`` (K,) bool; only when kept, ``images`` (K, H, W, 3) uint8; and, in maps
+written since 2026-11-29, ``surface_pixels`` (K, S) uint16/int32 with ``surface_valid`` (K, S)
+bool, the pixels of the whole predicted contact mask that the surface is built from (older maps
+build it from the contact points). The metadata's ``features_encoder`` names the encoder of the
+stored features.
 
 The map's surface (:class:`~tactojax.localize.MapSurface`, what localization reads; optional, maps
 written before it have none): ``surface_blocks`` (N, 5, 5, 5) float32 signed distances, mm (NaN:

@@ -4,9 +4,10 @@ Every surface pixel a map stores (sampled from each imprint's whole predicted co
 :attr:`~tactojax.mapping.TactileMap.surface_pixels`; the contact points of a map that keeps
 none), placed in the object frame with its normal, that the gel felt deeper than
 ``min_depth_mm`` is a small planar sample of the object's surface. :func:`build_map_surface`
-turns them into a dense grid over the object: at every cell within ``reach_mm`` of a stored point, the *signed* distance from the cell to the tangent plane
-of its nearest stored point (positive outside the object, along the stored normal; NaN farther
-away: the map says nothing there).
+turns them into a dense grid over the object: at every cell within ``reach_mm`` of a stored
+point, the *signed* distance from the cell to the tangent plane of its nearest stored point
+(positive outside the object, along the stored normal; NaN farther away: the map says nothing
+there).
 A touch is then scored at any hypothesis by one trilinear look-up per point, the opposite
 finger's touch and a touch that lands between stored imprints included, against the surface
 that all the imprints felt together.

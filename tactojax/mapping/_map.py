@@ -83,7 +83,7 @@ class TactileMap:
     visible edges, so a map of observed contact only knew 57 % of the gum box's surface, and a
     touch reaching past what it knew was scored as floating in space."""
     surface_valid: Bool[Array, "K S"] | None = None
-    """Which of the S surface pixels are real (None with ``surface_pixels``)."""
+    """Which of the S surface pixels are real (None when ``surface_pixels`` is)."""
 
     def __len__(self) -> int:
         return int(self.openings.shape[0])
