@@ -27,6 +27,10 @@ def add_parser(commands) -> None:
                         help="also fit the appearance weight relative to the temperature, by the likelihood of the "
                              "true pose (it decides which pose wins: on the catalog objects' 32 calibration episodes "
                              "it lost episodes; always fit for features of an encoder other than the default's)")
+    parser.add_argument("--search-only", action="store_true",
+                        help="keep the default's scales and fit only the probability, by touch count, that the "
+                             "search found the true pose's mode (the term that differs most between objects; "
+                             "the poses and the scales stay the default's)")
     parser.add_argument("--rounds", type=int, default=None,
                         help="fits, each running the belief with the previous one's scales (with --fit-shape they "
                              "decide which hypotheses it keeps; default 2 then, else 1: the shape kept, a second "
@@ -63,6 +67,9 @@ def run(args) -> int:
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
     # The default's shape belongs to its encoder's features: the features of another need their own.
     fit_shape = args.fit_shape or maps_encoder_name(args.maps, args.encoder) != DEFAULT_ENCODER
+    if args.search_only and fit_shape:
+        raise ValueError("--search-only keeps the default's scales, which belong to the default encoder's features: "
+                         "not with --fit-shape or the features of another encoder")
     rounds = args.rounds if args.rounds is not None else (2 if fit_shape else 1)
     if rounds < 1:
         raise ValueError(f"--rounds must be at least 1, got {rounds}")
@@ -76,9 +83,11 @@ def run(args) -> int:
         view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(path))  # the first round: uncalibrated
         for _ in range(rounds):
             records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
-            calibration, report = fit_calibration(records, None if fit_shape else BeliefCalibration.default())
+            calibration, report = fit_calibration(records, None if fit_shape else BeliefCalibration.default(),
+                                                  search_only=args.search_only)
             view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
         report.update(encoder=maps_encoder_name([path], args.encoder), fingers=args.fingers, shape_fit=fit_shape,
+                      search_only=args.search_only,
                       episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report

@@ -212,7 +212,8 @@ def fit_found_probability(records: BeliefRecord, calibration: BeliefCalibration)
     return calibration.replace(found_offset=np.float32(offset), found_slope=np.float32(slope))
 
 
-def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = None) -> tuple[BeliefCalibration, dict]:
+def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = None, *,
+                    search_only: bool = False) -> tuple[BeliefCalibration, dict]:
     """The belief's scales, fit on calibration beliefs in three steps (see the module docstring).
 
     1. The ratio of the appearance weight to the temperature: the one of the grid
@@ -231,6 +232,13 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
             hypotheses as under ``shape``: the fit changes how sure the belief says it is, never
             its poses (one map's few dozen calibration episodes are too few to move the ratio
             without losing episodes: docs/localization.md).
+        search_only: keep ``shape``'s temperature and exponent too (step 2 skipped): fit only
+            the probability that the search found the truth's mode. That term differs most
+            between objects (a box's single touch leaves more poses than 64 hypotheses cover),
+            and two parameters are what a few dozen calibration episodes pin down: on the
+            catalog objects' 32 episodes a fit of the temperature and exponent as well moved
+            the screwdriver's and the marker's calibration gaps the wrong way on new grasps
+            (docs/localization.md).
 
     Returns:
         the fitted :class:`BeliefCalibration` and a JSON-ready report (``loss``: the within log
@@ -238,8 +246,11 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
         2 mm, ``beliefs``: how many records, and the scales).
 
     Raises:
-        ValueError: no record holds a hypothesis (nothing to fit).
+        ValueError: no record holds a hypothesis (nothing to fit), or ``search_only`` without
+            ``shape``.
     """
+    if search_only and shape is None:
+        raise ValueError("search_only keeps the scales of `shape`: pass the calibration to keep")
     usable = records.valid.any(axis=1)
     if not usable.any():
         raise ValueError("no calibration touch produced a hypothesis: the calibration grasps do not touch the map")
@@ -249,9 +260,12 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
         shape = min((_scales(*scales) for scales in grid),
                     key=lambda scales: truth_log_loss(truth_probability(records, scales)))
     ratio = float(shape.appearance) / float(shape.temperature)
-    fitted = min((_scales(temperature, ratio * temperature, exponent)
-                  for temperature, exponent in itertools.product(TEMPERATURES, FUSION_EXPONENTS)),
-                 key=lambda scales: within_log_loss(*predict_within(records, scales)))
+    if search_only:
+        fitted = _scales(float(shape.temperature), float(shape.appearance), float(shape.fusion_exponent))
+    else:
+        fitted = min((_scales(temperature, ratio * temperature, exponent)
+                      for temperature, exponent in itertools.product(TEMPERATURES, FUSION_EXPONENTS)),
+                     key=lambda scales: within_log_loss(*predict_within(records, scales)))
     fitted = fit_found_probability(records, fitted)
     probability, happened = predict_within(records, fitted)
     report = {"loss": within_log_loss(probability, happened),

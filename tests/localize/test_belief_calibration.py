@@ -112,6 +112,29 @@ def test_fit_recovers_how_often_the_search_misses_the_truth():
     assert overconfident[records.touches == 1].mean() > 1.5 * happened[records.touches == 1].mean()  # twice, in truth
 
 
+def test_search_only_keeps_the_scales_and_fits_the_missed_search():
+    """``search_only``: the given scales stay exactly (even wrong ones), and the missed-search rate
+    is recovered as by :func:`fit_found_probability` at those scales."""
+    from tactojax.localize.evaluation import fit_found_probability
+
+    rng = np.random.default_rng(7)
+    records = _drop_truth(rng, _synthetic_records(rng, 0.02, 0.5, count=6000), offset=0.0, slope=2.0)
+    kept = BeliefCalibration(temperature=np.float32(0.02), appearance=np.float32(0.0), fusion_exponent=np.float32(0.5))
+    fitted, report = fit_calibration(records, kept, search_only=True)
+    for name in ("temperature", "appearance", "fusion_exponent"):
+        assert float(getattr(fitted, name)) == pytest.approx(float(getattr(kept, name)), rel=1e-6)
+    touches = np.array([1, 2, 6])
+    expected = 1.0 / (1.0 + np.exp(-(0.0 + 2.0 * np.log(touches))))
+    np.testing.assert_allclose(np.asarray(fitted.found_probability(touches)), expected, atol=0.05)
+    reference = fit_found_probability(records, kept)
+    assert float(fitted.found_offset) == float(reference.found_offset)
+    assert float(fitted.found_slope) == float(reference.found_slope)
+    hot = kept.replace(temperature=np.float32(1.0))  # a wrong temperature is kept as well
+    assert float(fit_calibration(records, hot, search_only=True)[0].temperature) == 1.0
+    with pytest.raises(ValueError, match="search_only"):
+        fit_calibration(records, search_only=True)
+
+
 def test_a_fit_stored_before_the_search_term_takes_the_default():
     from tactojax.localize import calibration_from_json, calibration_to_json
     from tactojax.localize._map import DEFAULT_FOUND
