@@ -82,6 +82,10 @@ def test_calibration_needs_the_objects_grasps(calibrated, tiny_encoder_path, tmp
     assert main(["calibrate-belief", map_path, "--grasps", str(other), "--model", model, "--encoder",
                  str(tiny_encoder_path)]) == 2
     assert "no calibration grasps of 'cylinder'" in capsys.readouterr().err
+    # The default's scales belong to the default encoder's features: --search-only keeps them, so not here.
+    assert main(["calibrate-belief", map_path, "--grasps", str(folder / "calibration"), "--model", model,
+                 "--encoder", str(tiny_encoder_path), "--search-only"]) == 2
+    assert "--search-only keeps the default's scales" in capsys.readouterr().err
 
 
 def test_identify_fuses_the_grasps_of_each_episode(calibrated, gum_box_map, tiny_encoder_path, tmp_path, capsys):
