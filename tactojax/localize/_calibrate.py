@@ -40,6 +40,9 @@ pin it down poorly: fit per map on the five catalog objects, it lost two or thre
 default's shape (step 1 skipped: ``fit_calibration(records, shape=...)``) for maps whose
 features come from the encoder the default was fit with, and fits only the sharpness and the
 search term: the belief's poses stay exactly those of the default, only its confidence moves.
+With ``--search-only`` (``fit_calibration(records, shape, search_only=True)``) it keeps the
+default's sharpness too and fits only the search term, the one that differs most between objects
+(after one touch 0.56 on the gum box, 0.98-1.00 on the other catalog objects).
 """
 
 from __future__ import annotations
