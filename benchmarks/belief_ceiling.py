@@ -228,8 +228,8 @@ def ceiling_rows(view: LocalizationMap, exact_view: LocalizationMap, episodes, t
                   + ", ".join(f"{x:.1f}" for x in length[e]) + " mm", flush=True)
     # Poses that fit more touches fit fewer: each count's longest interval is at least every later one's.
     length = np.maximum.accumulate(length[:, ::-1], axis=1)[:, ::-1]
-    # An interval of length 0 (no motion keeps every touch fitting) is determined: within 2 mm surely.
-    share = np.where(length > 0, 4.0 / np.where(length > 0, length, 1.0), np.inf)
+    with np.errstate(divide="ignore"):  # an interval of length 0 is determined: 4 / 0 = inf, within 2 mm surely
+        share = 4.0 / length
     rows = [{"grasps": g + 1, "ceiling_within_2mm": float(np.mean(np.minimum(1.0, share[:, g]))),
              "determined_share": float(np.mean(length[:, g] <= 4.0)),
              "median_interval_mm": float(np.median(length[:, g]))} for g in range(grasps)]

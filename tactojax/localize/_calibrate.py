@@ -262,10 +262,10 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
         grid = itertools.product(TEMPERATURES, APPEARANCE_WEIGHTS, FUSION_EXPONENTS)
         shape = min((_scales(*scales) for scales in grid),
                     key=lambda scales: truth_log_loss(truth_probability(records, scales)))
-    ratio = float(shape.appearance) / float(shape.temperature)
     if search_only:
         fitted = _scales(float(shape.temperature), float(shape.appearance), float(shape.fusion_exponent))
     else:
+        ratio = float(shape.appearance) / float(shape.temperature)
         fitted = min((_scales(temperature, ratio * temperature, exponent)
                       for temperature, exponent in itertools.product(TEMPERATURES, FUSION_EXPONENTS)),
                      key=lambda scales: within_log_loss(*predict_within(records, scales)))

@@ -175,7 +175,7 @@ class LocalizationMap:
             surface=surface if isinstance(surface, MapSurface) else build_map_surface(
                 tactile_map, SurfaceSettings() if surface is None else surface,
                 geometry=None if tactile_map.surface_pixels is not None
-                else {**geometry, "valid": all_valid & np.asarray(tactile_map.imprint_valid)[:, None]}),
+                else {**geometry, "valid": np.asarray(tactile_map.point_valid)}),
             symmetries=tactile_map.object_symmetry.copies() if symmetries is None else symmetries,
             **_continuous_symmetry(tactile_map.object_symmetry, continuous_symmetry),
             calibration=BeliefCalibration.default() if calibration is None else calibration,
