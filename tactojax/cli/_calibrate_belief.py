@@ -58,10 +58,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
-    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, stored_surface,
-                             tactile_map_metadata, update_tactile_map_metadata)
-    from tactojax.localize import BeliefCalibration, LocalizationMap, calibration_to_json, fit_calibration
-    from tactojax.localize.evaluation import record_beliefs
+    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, tactile_map_metadata,
+                             update_tactile_map_metadata)
 
     args.maps = expand_catalogs(args.maps)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
@@ -80,23 +78,63 @@ def run(args) -> int:
         if args.fingers > recorded:
             raise ValueError(f"--fingers {args.fingers}: the calibration grasps of {tactile_map.object_id} "
                              f"record {recorded} finger per grasp (simulate them with --fingers 2)")
-        view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(path))  # the first round: uncalibrated
-        for _ in range(rounds):
-            records = record_beliefs(view, episodes, fingers=args.fingers, progress=True)
-            calibration, report = fit_calibration(records, None if fit_shape else BeliefCalibration.default(),
-                                                  search_only=args.search_only)
-            view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
-        report.update(encoder=maps_encoder_name([path], args.encoder), fingers=args.fingers, shape_fit=fit_shape,
-                      search_only=args.search_only,
-                      episodes=int(episodes.openings.shape[0]), grasps=list(args.grasps))
+        calibration, report = calibrate_map_file(path, tactile_map, episodes, fingers=args.fingers, fit_shape=fit_shape,
+                                                 search_only=args.search_only, rounds=rounds)
+        report.update(encoder=maps_encoder_name([path], args.encoder), grasps=list(args.grasps))
         metadata = tactile_map_metadata(path).get("metadata", {})
         metadata["belief_calibration"] = report
         update_tactile_map_metadata(path, metadata)  # the file keeps its images and format
         payload[tactile_map.object_id] = report
-        rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
-                     report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])
-    fields = [name.replace("_", " ") for name in calibration_to_json(calibration)]
-    print(format_table(["object", "beliefs", *fields, "truth NLL", "within log loss", "best within 2 mm"], rows))
+        rows.append(calibration_row(tactile_map.object_id, calibration, report))
+    print(format_table(calibration_header(), rows))
     if args.json:
         write_json(args.json, payload)
     return 0
+
+
+def calibrate_map_file(path, tactile_map, episodes, *, fingers: int = 2, fit_shape: bool = False,
+                       search_only: bool = False, rounds: int = 1, progress: bool = True):
+    """Fit the belief's calibration of the map stored at ``path`` on its object's calibration episodes.
+
+    Args:
+        path: the map's file (its stored surface is read, nothing is written).
+        tactile_map: the map, as loaded from ``path``.
+        episodes: calibration grasps of the map's object (:class:`~tactojax.localize.evaluation.TestEpisodes`).
+        fingers: fingers fused per grasp.
+        fit_shape: also fit the appearance weight relative to the temperature (else the default's).
+        search_only: keep the default's scales and fit only the missed-search term.
+        rounds: fits, each running the belief with the previous one's scales.
+        progress: show a progress bar.
+
+    Returns:
+        (the fit :class:`~tactojax.localize.BeliefCalibration`, its report for the map's header).
+    """
+    from tactojax.io import stored_surface
+    from tactojax.localize import BeliefCalibration, LocalizationMap, fit_calibration
+    from tactojax.localize.evaluation import record_beliefs
+
+    view = LocalizationMap.from_tactile_map(tactile_map, surface=stored_surface(path))  # the first round: uncalibrated
+    for _ in range(rounds):
+        records = record_beliefs(view, episodes, fingers=fingers, progress=progress)
+        calibration, report = fit_calibration(records, None if fit_shape else BeliefCalibration.default(),
+                                              search_only=search_only)
+        view = view.replace(calibration=calibration)  # the next round keeps hypotheses by this fit
+    report.update(fingers=fingers, shape_fit=fit_shape, search_only=search_only,
+                  episodes=int(episodes.openings.shape[0]))
+    return calibration, report
+
+
+def calibration_header() -> list[str]:
+    """The columns of :func:`calibration_row`."""
+    from tactojax.localize import BeliefCalibration, calibration_to_json
+
+    fields = [name.replace("_", " ") for name in calibration_to_json(BeliefCalibration.default())]
+    return ["object", "beliefs", *fields, "truth NLL", "within log loss", "best within 2 mm"]
+
+
+def calibration_row(object_id: str, calibration, report: dict) -> list:
+    """One map's fit as a table row."""
+    from tactojax.localize import calibration_to_json
+
+    return [object_id, report["beliefs"], *calibration_to_json(calibration).values(), report["truth_loss"],
+            report["loss"], f"{100 * report['accuracy']:.0f} %"]

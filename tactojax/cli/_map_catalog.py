@@ -14,6 +14,8 @@ from tactojax.cli._table import format_table
 
 DATA_FOLDER = ".data"
 """Inside the catalog: one object's simulated mapping dataset while its map is built."""
+UNCALIBRATED = {"calibrate": 0, "calibration_turns_deg": [0.0, 180.0]}
+"""The calibration settings of a catalog built before ``--calibrate`` existed."""
 
 
 def add_parser(commands) -> None:
@@ -42,6 +44,15 @@ def add_parser(commands) -> None:
     parser.add_argument("--encoder", default=None, help="feature encoder stored with the maps (default: the bundled one)")
     parser.add_argument("--points", type=int, default=1024, help="contact points kept per imprint")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--calibrate", type=int, default=0, metavar="EPISODES",
+                        help="also simulate this many episodes of 3 two-finger grasps of each object (a key of their "
+                             "own, off the mapping grid) and fit how often the belief's search misses the true pose's "
+                             "mode, stored in the map's header as `calibrate-belief --search-only` does (about a "
+                             "minute per object at 32; default 0: the default calibration, fit on the five catalog "
+                             "objects pooled, which is overconfident on a single touch of a flat face)")
+    parser.add_argument("--calibration-turns-deg", type=float, nargs="+", default=[0.0, 180.0], metavar="DEG",
+                        help="object turns the calibration episodes draw from (default 0 180: as the new-grasps "
+                             "benchmark; give those the robot will meet)")
     parser.add_argument("--keep-images", action="store_true",
                         help="keep the tactile images in the maps (features from another encoder need them)")
     parser.add_argument("--keep-data", action="store_true", help="keep each object's simulated dataset "
@@ -77,9 +88,12 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     objects = expand_objects(args.objects)
     settings = {"grid_mm": args.grid_mm, "max_grasps": args.max_grasps, "scale": args.scale, "model": args.model,
-                "encoder": encoder_label(args.encoder or DEFAULT_ENCODER), "points": args.points, "seed": args.seed}
+                "encoder": encoder_label(args.encoder or DEFAULT_ENCODER), "points": args.points, "seed": args.seed,
+                "calibrate": args.calibrate, "calibration_turns_deg": [float(t) for t in args.calibration_turns_deg]}
+    if args.calibrate < 0:
+        raise ValueError(f"--calibrate takes a number of episodes (0: none), got {args.calibrate}")
     index = read_catalog(out)
-    if index["objects"] and index["settings"] != settings:
+    if index["objects"] and {**UNCALIBRATED, **index["settings"]} != settings:
         raise ValueError(f"{out} was built with other settings ({index['settings']}); use another --out to "
                          "build a catalog with these")
     index["settings"] = settings
@@ -142,11 +156,52 @@ def _build_object(name: str, out: Path, model, encoder, encoder_name: str, args)
     path = save_tactile_map(out / f"{slug}.npz", tactile_map, metadata={
         "data": f"{name} (mapping protocol, grid {protocol.grid_mm:g} mm)", "model": args.model,
         "features_encoder": encoder_name, "seed": args.seed})
+    calibration = None
+    if args.calibrate:
+        calibration = _calibrate(path, tactile_map, obj, spec, model, encoder, encoder_name,
+                                 data.with_name(f"{slug}-calibration"), args)
     if not args.keep_data:
         shutil.rmtree(data)
-    return {"status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,
+    return {**({"calibration": calibration} if calibration else {}), "status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,
             "imprints": len(tactile_map), "with_contact": int(tactile_map.imprint_valid.sum()),
             "bytes": path.stat().st_size, "symmetry": obj.symmetry.describe()}
+
+
+def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name: str, data: Path, args) -> dict:
+    """Simulate calibration episodes of the map's object and fit the belief's calibration into the map's header.
+
+    With the default encoder's features only the missed-search term is fit (``calibrate-belief
+    --search-only``: the default's scales belong to those features); with another encoder's, every
+    scale (``calibrate-belief``'s rule)."""
+    import jax
+
+    from tactojax.io import DEFAULT_ENCODER, encoder_label
+
+    from tactojax.cli._calibrate_belief import calibrate_map_file
+    from tactojax.io import tactile_map_metadata, update_tactile_map_metadata
+    from tactojax.localize import calibration_to_json
+    from tactojax.localize.evaluation import load_test_episodes
+    from tactojax.simulate import GraspsProtocol, simulate_to_dataset
+
+    protocol = GraspsProtocol(episodes=args.calibrate, grasps_per_episode=3, fingers=2,
+                              turns_deg=tuple(args.calibration_turns_deg))
+    shutil.rmtree(data, ignore_errors=True)
+    progress = not args.no_progress
+    # A key of their own: the mapping run draws from key(seed), the calibration grasps from its fold.
+    simulate_to_dataset(data, jax.random.fold_in(jax.random.key(args.seed), 1), spec, obj, protocol,
+                        progress=progress)
+    episodes, _ = load_test_episodes(data, tactile_map.object_id, model, encoder, progress=progress)
+    fit_shape = encoder_name != encoder_label(DEFAULT_ENCODER)
+    calibration, report = calibrate_map_file(path, tactile_map, episodes, fit_shape=fit_shape, search_only=not fit_shape,
+                                             rounds=2 if fit_shape else 1, progress=progress)
+    report.update(encoder=encoder_name, grasps=f"map-catalog --calibrate {args.calibrate} (seed {args.seed}, fold 1)")
+    metadata = tactile_map_metadata(path).get("metadata", {})
+    metadata["belief_calibration"] = report
+    update_tactile_map_metadata(path, metadata)
+    if not args.keep_data:
+        shutil.rmtree(data)
+    return {"episodes": args.calibrate, "found_after_1_touch": round(float(calibration.found_probability(1)), 3),
+            **calibration_to_json(calibration)}
 
 
 def summary_table(path, index: dict) -> str:
@@ -154,12 +209,15 @@ def summary_table(path, index: dict) -> str:
     rows, built = [], [e for e in index["objects"].values() if e["status"] == "built"]
     for name, entry in index["objects"].items():
         if entry["status"] == "built":
+            found = entry.get("calibration", {}).get("found_after_1_touch")
             rows.append([name, "built", entry["imprints"], entry["with_contact"], f"{entry['grid_mm']:g}",
-                         entry["bytes"] / 1e6, entry.get("seconds"), entry.get("symmetry", "-")])
+                         entry["bytes"] / 1e6, entry.get("seconds"), entry.get("symmetry", "-"),
+                         "default" if found is None else found])
         else:
-            rows.append([name, f"failed: {entry['error'][:60]}", None, None, None, None, entry.get("seconds"), None])
-    table = format_table(["object", "status", "imprints", "with contact", "grid (mm)", "MB", "build (s)", "symmetry"],
-                         rows)
+            rows.append([name, f"failed: {entry['error'][:60]}", None, None, None, None, entry.get("seconds"), None,
+                         None])
+    table = format_table(["object", "status", "imprints", "with contact", "grid (mm)", "MB", "build (s)", "symmetry",
+                          "P(search found), 1 touch"], rows)
     total_mb = sum(e["bytes"] for e in built) / 1e6
     total_s = sum(e.get("seconds") or 0.0 for e in index["objects"].values())
     return (f"{table}\ncatalog {path}: {len(built)} of {len(index['objects'])} objects mapped, "

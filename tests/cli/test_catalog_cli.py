@@ -82,3 +82,34 @@ def test_a_ycb_scan_that_a_catalog_object_is_goes_by_the_catalog_name():
     assert set(CATALOG_YCB_SCANS) <= set(expanded)  # named by ycb:all, mapped under the catalog's names
     assert len(expanded) == len(ycb_scans())  # every scan once, four of them by their catalog names
     assert get_object("screwdriver").parameters["ycb_id"] == CATALOG_YCB_SCANS["screwdriver"]
+
+
+@pytest.mark.slow  # simulates and maps a cylinder, then runs the belief over one calibration episode (~30 s)
+def test_map_catalog_calibrate_fits_the_search_term_into_the_map(lookup_model, tiny_encoder_path, tmp_path, capsys):
+    """``--calibrate N``: N episodes of the object's own grasps, the belief run over them, and its
+    calibration fit and stored in the map's header, where the belief reads it. Features of an
+    encoder other than the default's get every scale fit (``calibrate-belief``'s rule); the
+    default's, only the missed-search term (``--search-only``: the default's scales belong to them)."""
+    from tactojax.io import load_localization_map
+    from tactojax.localize import BeliefCalibration, calibration_to_json
+
+    model = save_shape_model(tmp_path / "lookup.msgpack", lookup_model)
+    out = tmp_path / "catalog"
+    common = ["--out", str(out), "--grid-mm", "40", "--scale", "0.25", "--model", str(model), "--encoder",
+              str(tiny_encoder_path), "--points", "64", "--no-progress"]
+    assert main(["map-catalog", "cylinder", *common, "--calibrate", "1"]) == 0
+    assert "P(search found), 1 touch" in capsys.readouterr().out
+    entry = read_catalog(out)["objects"]["cylinder"]
+    report = tactile_map_metadata(out / "cylinder.npz")["metadata"]["belief_calibration"]
+    assert report["shape_fit"] and not report["search_only"]  # the tiny encoder's features: every scale
+    assert report["episodes"] == 1 and report["fingers"] == 2 and report["encoder"] == encoder_label(tiny_encoder_path)
+    assert 0.0 < entry["calibration"]["found_after_1_touch"] <= 1.0
+    fitted = calibration_to_json(load_localization_map(out / "cylinder.npz").calibration)  # what the belief reads
+    assert fitted == pytest.approx({name: report[name] for name in fitted}, abs=1e-6)
+    assert fitted != pytest.approx(calibration_to_json(BeliefCalibration.default()))
+    assert not (out / ".data" / "cylinder-calibration").exists()
+    # A catalog built without calibration is another catalog.
+    assert main(["map-catalog", "cylinder", *common]) == 2
+    assert "was built with other settings" in capsys.readouterr().err
+    assert main(["map-catalog", "cylinder", *common, "--calibrate", "-1"]) == 2
+    assert "number of episodes" in capsys.readouterr().err

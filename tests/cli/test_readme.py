@@ -6,7 +6,8 @@ Only two things change, to keep the test within a few tens of seconds on 2 cores
 
 * flags appended to a line (``SMALLER``; argparse keeps the last value): coarser grids, fewer
   touches, steps and queries. The README's own flags and defaults (sensor resolution, shape
-  model, encoder, methods) are all kept.
+  model, encoder, methods) are all kept, except ``map-catalog``'s calibration (``--calibrate 0``:
+  it compiles the belief once per object; ``tests/cli/test_catalog_cli.py`` runs it).
 * the user's own files that the list names (``my_part.stl``, ``touch.png``, ``touches.mkv``,
   ``session.bag``) are made from simulated data just before the line that reads them.
 
@@ -43,7 +44,7 @@ SMALLER = {
     "train": ["--steps", "3", "--pixel-steps", "3", "--batch-size", "2", "--test-per-object", "2", "--no-progress"],
     "eval-shape": ["--held-out", "2"],
     "map": ["--points", "256", "--no-progress"],
-    "map-catalog": ["--grid-mm", "40", "--points", "256", "--no-progress"],
+    "map-catalog": ["--grid-mm", "40", "--points", "256", "--calibrate", "0", "--no-progress"],
     "eval-localization": ["--queries", "3"],
     "train-features": ["--steps", "2", "--batch-size", "4", "--no-progress"],
     "record": ["--grid-mm", "30", "--yaws-deg", "0", "--turns-deg", "0"],
