@@ -47,9 +47,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--calibrate", type=int, default=0, metavar="EPISODES",
                         help="also simulate this many episodes of 3 two-finger grasps of each object (a key of their "
                              "own, off the mapping grid) and fit how often the belief's search misses the true pose's "
-                             "mode, stored in the map's header as `calibrate-belief --search-only` does (about a "
-                             "minute per object at 32; default 0: the default calibration, fit on the five catalog "
-                             "objects pooled, which is overconfident on a single touch of a flat face)")
+                             "mode, stored in the map's header as `calibrate-belief --search-only` does (every scale "
+                             "for another encoder's features); 64 is enough for a stable fit, about 40 s per object "
+                             "on 2 cores. Default 0: the default calibration, fit on the five catalog objects pooled, "
+                             "which is overconfident on a single touch of a flat face")
     parser.add_argument("--calibration-turns-deg", type=float, nargs="+", default=[0.0, 180.0], metavar="DEG",
                         help="object turns the calibration episodes draw from (default 0 180: as the new-grasps "
                              "benchmark; give those the robot will meet)")
@@ -162,9 +163,10 @@ def _build_object(name: str, out: Path, model, encoder, encoder_name: str, args)
                                  data.with_name(f"{slug}-calibration"), args)
     if not args.keep_data:
         shutil.rmtree(data)
-    return {**({"calibration": calibration} if calibration else {}), "status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,
-            "imprints": len(tactile_map), "with_contact": int(tactile_map.imprint_valid.sum()),
-            "bytes": path.stat().st_size, "symmetry": obj.symmetry.describe()}
+    entry = {"status": "built", "map": path.name, "object_id": tactile_map.object_id, "grid_mm": protocol.grid_mm,
+             "imprints": len(tactile_map), "with_contact": int(tactile_map.imprint_valid.sum()),
+             "bytes": path.stat().st_size, "symmetry": obj.symmetry.describe()}
+    return entry if calibration is None else {**entry, "calibration": calibration}
 
 
 def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name: str, data: Path, args) -> dict:
@@ -175,10 +177,8 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
     scale (``calibrate-belief``'s rule)."""
     import jax
 
-    from tactojax.io import DEFAULT_ENCODER, encoder_label
-
     from tactojax.cli._calibrate_belief import calibrate_map_file
-    from tactojax.io import tactile_map_metadata, update_tactile_map_metadata
+    from tactojax.io import DEFAULT_ENCODER, encoder_label, tactile_map_metadata, update_tactile_map_metadata
     from tactojax.localize import calibration_to_json
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.simulate import GraspsProtocol, simulate_to_dataset
@@ -192,8 +192,8 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
                         progress=progress)
     episodes, _ = load_test_episodes(data, tactile_map.object_id, model, encoder, progress=progress)
     fit_shape = encoder_name != encoder_label(DEFAULT_ENCODER)
-    calibration, report = calibrate_map_file(path, tactile_map, episodes, fit_shape=fit_shape, search_only=not fit_shape,
-                                             rounds=2 if fit_shape else 1, progress=progress)
+    calibration, report = calibrate_map_file(path, tactile_map, episodes, fit_shape=fit_shape,
+                                             search_only=not fit_shape, rounds=2 if fit_shape else 1, progress=progress)
     report.update(encoder=encoder_name, grasps=f"map-catalog --calibrate {args.calibrate} (seed {args.seed}, fold 1)")
     metadata = tactile_map_metadata(path).get("metadata", {})
     metadata["belief_calibration"] = report
