@@ -85,6 +85,20 @@ def _map_symmetry(path) -> str:
     return f"{object_symmetry(header['object_id']).describe()} (the catalog's, by object id; none recorded)"
 
 
+def _map_calibration(path) -> str:
+    """The belief calibration the map's header stores, in words (``calibrate-belief``, ``map-catalog --calibrate``)."""
+    from tactojax.io import tactile_map_metadata
+    from tactojax.localize import calibration_from_json
+
+    fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+    if fit is None:
+        return "the default (no fit of its own: `calibrate-belief` or `map-catalog --calibrate`)"
+    kind = "the search term" if fit.get("search_only") else "every scale" if fit.get("shape_fit") else "the sharpness"
+    found = float(calibration_from_json(fit).found_probability(1))
+    return (f"{kind} fit on {fit.get('episodes', '?')} episodes of its object's grasps ({fit.get('fingers', '?')} "
+            f"fingers); P(search found) after one touch {found:.2f}")
+
+
 def _map_bytes(args) -> int:
     from tactojax.io import tactile_map_bytes
 
@@ -101,6 +115,7 @@ def _map_bytes(args) -> int:
                else "not stored (built when the map is loaded for localization)")
     print(f"surface   {surface}")
     print(f"symmetry  {_map_symmetry(args.dataset)}")
+    print(f"belief    {_map_calibration(args.dataset)}")
     print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:
         write_json(args.json, summary)

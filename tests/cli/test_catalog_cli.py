@@ -55,7 +55,8 @@ def test_map_catalog_builds_resumes_and_feeds_the_commands(lookup_model, tiny_en
     assert stored_surface(out / "gum_box.npz") is not None
     capsys.readouterr()
     assert main(["info", str(out / "gum_box.npz")]) == 0
-    assert "surface   stored" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "surface   stored" in printed and "belief    the default (no fit of its own" in printed
 
     # The maps record their encoder, and the commands encode new touches with it by default.
     assert tactile_map_metadata(out / "cylinder.npz")["metadata"]["features_encoder"] == encoder_label(tiny_encoder_path)
@@ -108,6 +109,9 @@ def test_map_catalog_calibrate_fits_the_search_term_into_the_map(lookup_model, t
     assert fitted == pytest.approx({name: report[name] for name in fitted}, abs=1e-6)
     assert fitted != pytest.approx(calibration_to_json(BeliefCalibration.default()))
     assert not (out / ".data" / "cylinder-calibration").exists()
+    capsys.readouterr()
+    assert main(["info", str(out / "cylinder.npz")]) == 0
+    assert "belief    every scale fit on 1 episodes of its object's grasps (2 fingers)" in capsys.readouterr().out
     # A catalog built without calibration is another catalog.
     assert main(["map-catalog", "cylinder", *common]) == 2
     assert "was built with other settings" in capsys.readouterr().err
