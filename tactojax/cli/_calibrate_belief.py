@@ -18,7 +18,8 @@ def add_parser(commands) -> None:
                     "appearance weight relative to the temperature, which decides the poses, stays the default's "
                     "unless --fit-shape or the maps' features come from another encoder); the fit is stored in the "
                     "map's header, where every command that runs the belief reads it.")
-    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (the fit is written into their headers; nothing else changes)")
+    parser.add_argument("maps", nargs="+", help="tactile maps (.npz) from `tactojax map` or map catalogs (the fit "
+                                                 "is written into their headers; nothing else changes)")
     parser.add_argument("--grasps", nargs="+", required=True, metavar="DIR",
                         help="new-grasps datasets holding each map's object (`--protocol grasps`)")
     parser.add_argument("--fingers", type=int, choices=[1, 2], default=2,

@@ -54,7 +54,8 @@ def run(args) -> int:
     image_shape = summary["schema"].get("image", {}).get("shape")
     print(f"dataset   {summary['path']}")
     print(f"imprints  {summary['count']} in {summary['chunks']} chunks ({summary['bytes'] / 1e6:.1f} MB)")
-    print(f"sensor    {sensor.get('name', '?')}, {sensor.get('mm_per_px', float('nan')):.4f} mm/px, image {image_shape}")
+    mm_per_px = sensor.get("mm_per_px", float("nan"))
+    print(f"sensor    {sensor.get('name', '?')}, {mm_per_px:.4f} mm/px, image {image_shape}")
     print(f"protocol  {protocol.get('name', '?')}")
     for repair in metadata.get("repairs", []):  # records dropped by `tactojax repair`
         lost = repair.get("lost", [])

@@ -41,7 +41,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--scale", type=float, default=DEFAULT_SCALE, help=f"gelslim resolution factor (default "
                                                                             f"{DEFAULT_SCALE}, the bundled model's)")
     parser.add_argument("--model", default=DEFAULT_MODEL, help=f"shape model (default {DEFAULT_MODEL})")
-    parser.add_argument("--encoder", default=None, help="feature encoder stored with the maps (default: the bundled one)")
+    parser.add_argument("--encoder", default=None,
+                        help="feature encoder stored with the maps (default: the bundled one)")
     parser.add_argument("--points", type=int, default=1024, help="contact points kept per imprint")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--calibrate", type=int, default=0, metavar="EPISODES",
@@ -83,7 +84,8 @@ def expand_objects(names: list[str]) -> list[str]:
 def run(args) -> int:
     from tqdm.auto import tqdm
 
-    from tactojax.io import DEFAULT_ENCODER, encoder_label, read_catalog, resolve_encoder, resolve_shape_model, write_catalog
+    from tactojax.io import (DEFAULT_ENCODER, encoder_label, read_catalog, resolve_encoder, resolve_shape_model,
+                             write_catalog)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

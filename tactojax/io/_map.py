@@ -3,7 +3,8 @@
 Map format (compressed ``.npz``, read with ``allow_pickle=False``, written atomically): a zip of numpy
 arrays plus ``header``, a JSON string: ``{"format": "tactojax-tactile-map", "version": 2,
 "object_id", "mm_per_px", "sensor", "metadata": {...}}``, and ``"symmetry"`` (the object's
-symmetry group, :meth:`~tactojax.objects.ObjectSymmetry.to_json`) when the map recorded one. Version 2 (compact) arrays, one per stored
+symmetry group, :meth:`~tactojax.objects.ObjectSymmetry.to_json`) when the map recorded one.
+Version 2 (compact) arrays, one per stored
 :class:`~tactojax.mapping.TactileMap` field: ``packed_heightmaps`` (K, H, W) float16 mm with the
 contact mask in the sign bit; ``point_pixels`` (K, P) uint16 (int32 past 65536 pixels), the
 contact points' pixels (row * W + col); ``valid`` (K, P) bool; ``T_object_sensor`` (K, 7) float32
@@ -341,7 +342,8 @@ def tactile_map_bytes(path) -> dict:
     _, surface = _read_npz(path, surface=True)
     with zipfile.ZipFile(path) as archive:
         disk = {Path(info.filename).stem: info.compress_size for info in archive.infolist()}
-    fields = {name: {"memory": int(value.nbytes), "disk": disk.get(name)} for name, value in {**arrays, **surface}.items()}
+    fields = {name: {"memory": int(value.nbytes), "disk": disk.get(name)}
+              for name, value in {**arrays, **surface}.items()}
     loaded = load_tactile_map(path)
     return {"object_id": header["object_id"], "version": int(header["version"]), "imprints": len(loaded),
             "file_bytes": path.stat().st_size, "memory_bytes": sum(fields[name]["memory"] for name in arrays),
