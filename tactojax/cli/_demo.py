@@ -238,8 +238,8 @@ def _belief(args, spec, model, encoder, maps, out: Path) -> dict:
                               turns_deg=(0.0, 180.0))
     shown = sorted({1, args.grasps})
     print(f"\n5/6 the pose belief on new grasps: {args.episodes} episodes of {args.grasps} grasps per object, off "
-          "the mapping grid, both fingers; each grasp fused by the kinematics (the default scales, the catalog objects' median "
-          "fit: `tactojax calibrate-belief` fits them on grasps of the object's own)")
+          "the mapping grid, both fingers; each grasp fused by the kinematics (the default calibration; "
+          "`tactojax map-catalog --calibrate 64` or `calibrate-belief` fits a map's own on grasps of its object)")
     rows, payload, examples, curves = [], {}, {}, {}
     for index, tactile_map in enumerate(maps):
         name = tactile_map.object_id
