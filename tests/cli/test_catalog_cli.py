@@ -86,7 +86,8 @@ def test_a_ycb_scan_that_a_catalog_object_is_goes_by_the_catalog_name():
 
 
 @pytest.mark.slow  # simulates and maps a cylinder, then runs the belief over one calibration episode (~30 s)
-def test_map_catalog_calibrate_fits_the_search_term_into_the_map(lookup_model, tiny_encoder_path, tmp_path, capsys):
+def test_map_catalog_calibrate_fits_the_search_term_into_the_map(lookup_model, tiny_encoder_path, tmp_path, capsys,
+                                                                  monkeypatch):
     """``--calibrate N``: N episodes of the object's own grasps, the belief run over them, and its
     calibration fit and stored in the map's header, where the belief reads it. Features of an
     encoder other than the default's get every scale fit (``calibrate-belief``'s rule); the
@@ -112,6 +113,29 @@ def test_map_catalog_calibrate_fits_the_search_term_into_the_map(lookup_model, t
     capsys.readouterr()
     assert main(["info", str(out / "cylinder.npz")]) == 0
     assert "belief    every scale fit on 1 episodes of its object's grasps (2 fingers)" in capsys.readouterr().out
+    # With the default encoder's features only the search term is fit (the default's scales belong to them).
+    import argparse
+
+    import tactojax.cli._calibrate_belief as calibrate_belief
+    from tactojax.cli._map_catalog import _calibrate
+    from tactojax.io import DEFAULT_ENCODER, load_tactile_map, resolve_encoder, resolve_shape_model
+    from tactojax.sensor import sensor_preset
+
+    asked = {}
+
+    def fake_fit(path, tactile_map, episodes, **options):
+        asked.update(options)
+        return BeliefCalibration.default(), {"beliefs": 0}
+
+    monkeypatch.setattr(calibrate_belief, "calibrate_map_file", fake_fit)
+    args = argparse.Namespace(calibrate=1, calibration_turns_deg=[0.0], seed=0, no_progress=True, keep_data=False)
+    _calibrate(out / "cylinder.npz", load_tactile_map(out / "cylinder.npz"), get_object("cylinder"),
+               sensor_preset("gelslim", scale=0.25), resolve_shape_model(str(model)),
+               resolve_encoder(str(tiny_encoder_path)), encoder_label(DEFAULT_ENCODER),
+               out / ".data" / "cylinder-calibration", args)
+    assert asked == {"fit_shape": False, "search_only": True, "rounds": 1, "progress": False}
+    assert tactile_map_metadata(out / "cylinder.npz")["metadata"]["belief_calibration"]["encoder"] == \
+        encoder_label(DEFAULT_ENCODER)
     # A catalog built without calibration is another catalog.
     assert main(["map-catalog", "cylinder", *common]) == 2
     assert "was built with other settings" in capsys.readouterr().err
