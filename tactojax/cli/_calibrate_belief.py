@@ -59,8 +59,8 @@ def _episodes_of(object_id: str, directories, model, encoder):
 
 def run(args) -> int:
     from tactojax.cli._maps import maps_and_query_encoder, maps_encoder_name
-    from tactojax.io import (DEFAULT_ENCODER, expand_catalogs, resolve_shape_model, tactile_map_metadata,
-                             update_tactile_map_metadata)
+    from tactojax.io import DEFAULT_ENCODER, expand_catalogs, resolve_shape_model
+    from tactojax.localize import calibration_to_json
 
     args.maps = expand_catalogs(args.maps)
     maps, encoder = maps_and_query_encoder(args.maps, args.encoder)
@@ -82,12 +82,12 @@ def run(args) -> int:
         calibration, report = calibrate_map_file(path, tactile_map, episodes, fingers=args.fingers, fit_shape=fit_shape,
                                                  search_only=args.search_only, rounds=rounds)
         report.update(encoder=maps_encoder_name([path], args.encoder), grasps=list(args.grasps))
-        metadata = tactile_map_metadata(path).get("metadata", {})
-        metadata["belief_calibration"] = report
-        update_tactile_map_metadata(path, metadata)  # the file keeps its images and format
+        store_calibration(path, report)
         payload[tactile_map.object_id] = report
-        rows.append(calibration_row(tactile_map.object_id, calibration, report))
-    print(format_table(calibration_header(), rows))
+        rows.append([tactile_map.object_id, report["beliefs"], *calibration_to_json(calibration).values(),
+                     report["truth_loss"], report["loss"], f"{100 * report['accuracy']:.0f} %"])
+    fields = [name.replace("_", " ") for name in calibration_to_json(calibration)]
+    print(format_table(["object", "beliefs", *fields, "truth NLL", "within log loss", "best within 2 mm"], rows))
     if args.json:
         write_json(args.json, payload)
     return 0
@@ -125,17 +125,11 @@ def calibrate_map_file(path, tactile_map, episodes, *, fingers: int = 2, fit_sha
     return calibration, report
 
 
-def calibration_header() -> list[str]:
-    """The columns of :func:`calibration_row`."""
-    from tactojax.localize import BeliefCalibration, calibration_to_json
+def store_calibration(path, report: dict) -> None:
+    """Write a fit's report (:func:`calibrate_map_file`'s, with its encoder) into the map's header,
+    where every command that runs the belief reads it; the file keeps its arrays and format."""
+    from tactojax.io import tactile_map_metadata, update_tactile_map_metadata
 
-    fields = [name.replace("_", " ") for name in calibration_to_json(BeliefCalibration.default())]
-    return ["object", "beliefs", *fields, "truth NLL", "within log loss", "best within 2 mm"]
-
-
-def calibration_row(object_id: str, calibration, report: dict) -> list:
-    """One map's fit as a table row."""
-    from tactojax.localize import calibration_to_json
-
-    return [object_id, report["beliefs"], *calibration_to_json(calibration).values(), report["truth_loss"],
-            report["loss"], f"{100 * report['accuracy']:.0f} %"]
+    metadata = tactile_map_metadata(path).get("metadata", {})
+    metadata["belief_calibration"] = report
+    update_tactile_map_metadata(path, metadata)

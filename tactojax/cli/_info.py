@@ -75,23 +75,20 @@ def run(args) -> int:
     return 0
 
 
-def _map_symmetry(path) -> str:
-    """The map's symmetry group in words, and where it comes from."""
-    from tactojax.io import tactile_map_metadata
+def _map_symmetry(header: dict) -> str:
+    """The map's symmetry group in words, and where it comes from (``header``: the map's)."""
     from tactojax.objects import ObjectSymmetry, object_symmetry
 
-    header = tactile_map_metadata(path)
     if "symmetry" in header:
         return f"{ObjectSymmetry.from_json(header['symmetry']).describe()} (recorded when mapped)"
     return f"{object_symmetry(header['object_id']).describe()} (the catalog's, by object id; none recorded)"
 
 
-def _map_calibration(path) -> str:
+def _map_calibration(header: dict) -> str:
     """The belief calibration the map's header stores, in words (``calibrate-belief``, ``map-catalog --calibrate``)."""
-    from tactojax.io import tactile_map_metadata
     from tactojax.localize import calibration_from_json
 
-    fit = tactile_map_metadata(path).get("metadata", {}).get("belief_calibration")
+    fit = header.get("metadata", {}).get("belief_calibration")
     if fit is None:
         return "the default (no fit of its own: `calibrate-belief` or `map-catalog --calibrate`)"
     kind = "the search term" if fit.get("search_only") else "every scale" if fit.get("shape_fit") else "the sharpness"
@@ -101,7 +98,7 @@ def _map_calibration(path) -> str:
 
 
 def _map_bytes(args) -> int:
-    from tactojax.io import tactile_map_bytes
+    from tactojax.io import tactile_map_bytes, tactile_map_metadata
 
     summary = tactile_map_bytes(args.dataset)
     count = max(summary["imprints"], 1)
@@ -115,8 +112,9 @@ def _map_bytes(args) -> int:
     surface = (f"stored, {summary['surface_bytes'] / count:,.0f} bytes per imprint" if summary["surface_bytes"]
                else "not stored (built when the map is loaded for localization)")
     print(f"surface   {surface}")
-    print(f"symmetry  {_map_symmetry(args.dataset)}")
-    print(f"belief    {_map_calibration(args.dataset)}")
+    header = tactile_map_metadata(args.dataset)
+    print(f"symmetry  {_map_symmetry(header)}")
+    print(f"belief    {_map_calibration(header)}")
     print(format_table(["field", "bytes/imprint (memory)", "bytes/imprint (disk)"], rows))
     if args.json:
         write_json(args.json, summary)

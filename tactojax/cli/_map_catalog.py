@@ -179,8 +179,8 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
     scale (``calibrate-belief``'s rule)."""
     import jax
 
-    from tactojax.cli._calibrate_belief import calibrate_map_file
-    from tactojax.io import DEFAULT_ENCODER, encoder_label, tactile_map_metadata, update_tactile_map_metadata
+    from tactojax.cli._calibrate_belief import calibrate_map_file, store_calibration
+    from tactojax.io import DEFAULT_ENCODER, encoder_label
     from tactojax.localize import calibration_to_json
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.simulate import GraspsProtocol, simulate_to_dataset
@@ -197,9 +197,7 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
     calibration, report = calibrate_map_file(path, tactile_map, episodes, fit_shape=fit_shape,
                                              search_only=not fit_shape, rounds=2 if fit_shape else 1, progress=progress)
     report.update(encoder=encoder_name, grasps=f"map-catalog --calibrate {args.calibrate} (seed {args.seed}, fold 1)")
-    metadata = tactile_map_metadata(path).get("metadata", {})
-    metadata["belief_calibration"] = report
-    update_tactile_map_metadata(path, metadata)
+    store_calibration(path, report)
     if not args.keep_data:
         shutil.rmtree(data)
     return {"episodes": args.calibrate, "found_after_1_touch": round(float(calibration.found_probability(1)), 3),
