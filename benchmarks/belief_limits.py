@@ -17,7 +17,10 @@ exact data still misses, the touches do not carry the information or the search 
 it. Then, for every episode still more than 2 mm off after all its grasps (the map's surface,
 predicted touches), where its touches land on the map at the true pose and at the belief's best:
 how many contact points of its worst touch fall where the map knows no surface, and how well
-the others fit (a touch reaching past what the map stored is scored as floating in space).
+the others fit (a touch reaching past what the map stored is scored as floating in space); and
+whether the belief scores the truth (refined by its own ICP) above its best, so that its search
+missed it, or below, so that its likelihood prefers the wrong pose
+(:func:`~tactojax.localize.evaluation.truth_against_best`).
 
 Errors are the paper's cloud RMSE, up to the object's symmetry for a symmetric one (the
 catalog's). Needs a catalog object (its true solid: a primitive's signed distance, or a mesh's
@@ -37,7 +40,7 @@ import numpy as np
 
 from tactojax.io import read_test_grasps, resolve_encoder, resolve_shape_model
 from tactojax.localize import LocalizationMap, MapSurface
-from tactojax.localize.evaluation import episode_beliefs, evaluate_new_grasps, load_test_episodes
+from tactojax.localize.evaluation import episode_beliefs, evaluate_new_grasps, load_test_episodes, truth_against_best
 from tactojax.objects import get_object
 
 try:  # run as ``python benchmarks/belief_limits.py`` or as a module
@@ -121,7 +124,8 @@ def failures(view: LocalizationMap, episodes, fingers: int, error: np.ndarray) -
     :func:`belief_rows` on the same map and episodes), one row each, for its worst touch (the one
     with the most contact points where the map knows no surface at the true pose): how many land
     there at the true pose and at the belief's best, and the median distance of its other points
-    to the surface at the true pose."""
+    to the surface at the true pose; and the belief's log-likelihood at its best and at the
+    truth (refined): which of the search and the likelihood missed."""
     beliefs = episode_beliefs(view, episodes, fingers=fingers, alone=False)  # (E, N): the last holds every touch
     rows = []
     for e in np.flatnonzero(error > 2.0):
@@ -136,11 +140,14 @@ def failures(view: LocalizationMap, episodes, fingers: int, error: np.ndarray) -
             landing[name] = (np.sum(valid & ~known, axis=1), np.where(valid & known, np.abs(distance), np.nan))
         worst = int(np.argmax(landing["truth"][0]))
         fit = landing["truth"][1][worst]
+        best_score, truth_score = (float(x) for x in truth_against_best(view, belief, belief.T_world_reference))
         rows.append({"episode": int(e), "error_mm": float(error[e]),
                      "worst_touch_unknown_at_truth": int(landing["truth"][0][worst]),
                      "same_touch_unknown_at_best": int(landing["best"][0][worst]),
                      "worst_touch_known_fit_mm": float(np.nanmedian(fit)) if np.isfinite(fit).any() else None,
-                     "contact_points_per_touch": int(belief.evidence.contact_valid.shape[1])})
+                     "contact_points_per_touch": int(belief.evidence.contact_valid.shape[1]),
+                     "log_likelihood_best": best_score, "log_likelihood_truth": truth_score,
+                     "missed_by": "search" if truth_score > best_score else "likelihood"})
     return rows
 
 
@@ -197,12 +204,18 @@ def main() -> None:
     print(f"episodes more than 2 mm off after {grasps[-1]} grasps (the map's surface, predicted touches): "
           f"{len(failed)}")
     print(format_table(["episode", "error (mm)", "worst touch: points on unknown surface at the truth",
-                        "the same touch at the belief's best", "its other points' median |distance| (mm)"],
+                        "the same touch at the belief's best", "its other points' median |distance| (mm)",
+                        "log-likelihood: best, truth (refined)", "missed by"],
                        [[r["episode"], f"{r['error_mm']:.2f}",
                          f"{r['worst_touch_unknown_at_truth']} of {r['contact_points_per_touch']}",
                          r["same_touch_unknown_at_best"],
-                         "-" if r["worst_touch_known_fit_mm"] is None else f"{r['worst_touch_known_fit_mm']:.2f}"]
+                         "-" if r["worst_touch_known_fit_mm"] is None else f"{r['worst_touch_known_fit_mm']:.2f}",
+                         f"{r['log_likelihood_best']:.2f}, {r['log_likelihood_truth']:.2f}", r["missed_by"]]
                         for r in failed]))
+    if failed:
+        search = sum(r["missed_by"] == "search" for r in failed)
+        print(f"missed by the search (the truth scores higher than the best): {search} of {len(failed)}; by the "
+              f"likelihood (the best scores higher): {len(failed) - search}")
     share = coverage(distance, known)
     print(f"{name}: {episodes.openings.shape[0]} episodes x {args.fingers} finger(s); calibration: "
           f"{'stored' if calibration is not None else 'none (default)'}; the map knows {100 * share:.0f} % of the "

@@ -123,12 +123,14 @@ def main() -> None:
     print(format_table(["object", "touches", "beliefs", "mean P before", "mean P after", "observed",
                         "log loss before", "log loss after"], rows))
     found = fitted.found_probability(np.array([1, 2, 3, 6]))
-    print(f"fitted: found_offset {float(fitted.found_offset):.2f}, found_slope {float(fitted.found_slope):.2f} "
-          f"(P(found) after 1 / 2 / 3 / 6 touches: {' / '.join(f'{float(p):.2f}' for p in found)}); "
+    print(f"fitted: found_offset {float(fitted.found_offset):.2f}, found_slope {float(fitted.found_slope):.2f}, "
+          f"found_contact {float(fitted.found_contact):.2f} "
+          f"(P(found) after 1 / 2 / 3 / 6 touches of 20 mm²: {' / '.join(f'{float(p):.2f}' for p in found)}); "
           f"pooled log loss {results['pooled']['log_loss_before']:.3f} -> {results['pooled']['log_loss_after']:.3f}")
     if args.json:
         write_json(args.json, {"maps": map_paths(args), "grasps": args.grasps, "found_offset": float(fitted.found_offset),
-                               "found_slope": float(fitted.found_slope), "results": results, "machine": machine_info()})
+                               "found_slope": float(fitted.found_slope), "found_contact": float(fitted.found_contact),
+                               "results": results, "machine": machine_info()})
         print(f"wrote {args.json}")
 
 

@@ -137,6 +137,9 @@ class PoseBelief:
     """(T,) the remembered touches (slot 0: the reference)."""
     features: Float[Array, "T F"]
     """Their unit retrieval features."""
+    contact_mm2: Float[Array, "T"]
+    """Their contact areas (the observed contact mask), mm²: how often the search misses the
+    truth depends on it (:meth:`BeliefCalibration.found_probability`)."""
     T_reference_touch: jaxlie.SE3
     """(T,) every remembered touch's sensor pose in the reference sensor frame, mm."""
     T_world_reference: jaxlie.SE3
@@ -196,11 +199,17 @@ class PoseBelief:
     # The queries below are jitted (one program each, not dozens of dispatched operations: a
     # notebook's call takes a fraction of a millisecond once compiled); inside jit they inline.
 
+    @property
+    def mean_contact_mm2(self) -> Float[Array, ""]:
+        """The mean contact area of the touches the belief holds, mm² (0 before any)."""
+        return jnp.sum(jnp.where(self.touch_valid, self.contact_mm2, 0.0)) / jnp.maximum(self.touches, 1)
+
     def probability_within(self, threshold_mm: float = WITHIN_MM) -> Float[Array, ""]:
         """P(the best pose is within ``threshold_mm`` of the truth, up to the object's
         symmetry), the cloud RMSE of the remembered touches' contact points (the paper's
         metric): the hypotheses' mass near the best, times the probability that they hold the
-        truth's mode at all (:meth:`BeliefCalibration.found_probability`)."""
+        truth's mode at all, given how many touches it holds and their contact area
+        (:meth:`BeliefCalibration.found_probability`)."""
         return _probability_within(self, threshold_mm)
 
     def modes(self, separation_mm: float = WITHIN_MM) -> tuple[Int[Array, "M"], Float[Array, "M"]]:
@@ -225,7 +234,7 @@ class PoseBelief:
 def _probability_within(belief: PoseBelief, threshold_mm: Float[Array, ""]) -> Float[Array, ""]:
     distance = hypothesis_distances(belief, belief.best, symmetric=True)
     near = jnp.sum(jnp.where(distance <= threshold_mm, belief.probabilities, 0.0))
-    return near * belief.calibration.found_probability(belief.touches)
+    return near * belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2)
 
 
 @top_level_jit
@@ -331,7 +340,7 @@ def empty_belief(view: LocalizationMap, settings: BeliefSettings = BeliefSetting
                              free=jnp.zeros((slots, free, 3)), free_valid=jnp.zeros((slots, free), bool))
     return PoseBelief(T_object_reference=jaxlie.SE3.identity((count,)),
                       log_weights=jnp.full((count,), -jnp.inf, jnp.float32), evidence=evidence,
-                      features=jnp.zeros((slots, view.features.shape[1])),
+                      features=jnp.zeros((slots, view.features.shape[1])), contact_mm2=jnp.zeros((slots,)),
                       T_reference_touch=jaxlie.SE3.identity((slots,)), touch_valid=jnp.zeros((slots,), bool),
                       T_world_reference=jaxlie.SE3.identity(), symmetries=view.symmetries,
                       symmetry_axis=view.symmetry_axis, symmetry_centre=view.symmetry_centre,
@@ -342,18 +351,20 @@ def _unit(feature: Float[Array, "F"]) -> Float[Array, "F"]:
     return feature / jnp.maximum(jnp.linalg.norm(feature), 1e-12)
 
 
-def remember(belief: PoseBelief, evidence: TouchEvidence, feature: Float[Array, "F"],
+def remember(belief: PoseBelief, evidence: TouchEvidence, feature: Float[Array, "F"], contact_mm2: Float[Array, ""],
              T_reference_touch: jaxlie.SE3) -> PoseBelief:
     """Step 1: the touch joins the buffer (the oldest non-reference touch goes when it is full)."""
     slots = belief.touch_valid.shape[0]
     full = jnp.all(belief.touch_valid)
     # When full, shift slots 2.. down by one (slot 0 stays the reference) and write the last.
     order = jnp.where(full, jnp.concatenate([jnp.array([0]), jnp.arange(2, slots + 1) % slots]), jnp.arange(slots))
-    buffers = (belief.evidence, belief.features, belief.T_reference_touch.wxyz_xyz, belief.touch_valid)
-    evidence_buffer, features, poses, valid = take(buffers, order)
+    buffers = (belief.evidence, belief.features, belief.contact_mm2, belief.T_reference_touch.wxyz_xyz,
+               belief.touch_valid)
+    evidence_buffer, features, areas, poses, valid = take(buffers, order)
     slot = jnp.where(full, slots - 1, jnp.argmin(belief.touch_valid))
     put = lambda old, new: old.at[slot].set(new)  # noqa: E731
     return belief.replace(evidence=jax.tree.map(put, evidence_buffer, evidence), features=put(features, _unit(feature)),
+                          contact_mm2=put(areas, contact_mm2),
                           T_reference_touch=jaxlie.SE3(put(poses, T_reference_touch.wxyz_xyz)),
                           touch_valid=put(valid, True))
 
@@ -513,6 +524,19 @@ def weigh(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.
     return calibrated_log_likelihood(belief.calibration, geometry, similarity, belief.touches)
 
 
+@functools.partial(top_level_jit, static_argnames=("settings",))
+def truth_against_best(view: LocalizationMap, belief: PoseBelief, T_object_reference: jaxlie.SE3,
+                       settings: BeliefSettings = BeliefSettings()) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """Why a belief is wrong (evaluation): its calibrated log-likelihood of all its touches at its
+    best hypothesis, and at the true pose ``T_object_reference`` (the reference sensor's, object
+    frame, mm) refined by the belief's own ICP (the better of the truth and its refinement). The
+    truth scoring higher: the search never reached it; lower: the likelihood prefers a wrong pose
+    (the touches, as the map explains them, do not tell them apart)."""
+    refined = refine(view, belief, T_object_reference, settings)
+    truth = jnp.maximum(weigh(view, belief, T_object_reference, settings), weigh(view, belief, refined, settings))
+    return weigh(view, belief, belief.best, settings), truth
+
+
 def _keep_distinct(belief: PoseBelief, poses: jaxlie.SE3, scores: Float[Array, "N"], count: int,
                    duplicate_mm: float) -> tuple[jaxlie.SE3, Float[Array, "count"]]:
     """The ``count`` best poses, a pose within ``duplicate_mm`` of a better one dropped."""
@@ -601,7 +625,8 @@ def update_belief(
     T_reference_touch = jax.tree.map(lambda identity, relative: jnp.where(first, identity, relative),
                                      jaxlie.SE3.identity(), T_world_reference.inverse() @ T_world_sensor)
     belief = belief.replace(T_world_reference=T_world_reference)
-    belief = remember(belief, evidence, feature, T_reference_touch)
+    contact_mm2 = jnp.sum(touch.mask) * view.mm_per_px ** 2
+    belief = remember(belief, evidence, feature, contact_mm2, T_reference_touch)
     T_new, new_scores = candidates(view, belief, evidence, feature, opening, T_reference_touch, settings, exclude)
     old_valid = jnp.isfinite(belief.log_weights) & ~first
     pooled = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), belief.T_object_reference, T_new)

@@ -22,8 +22,9 @@ few hundred beliefs):
    log-likelihood of what happened (the best hypothesis within 2 mm of the truth, or not) under
    the reported P(within 2 mm);
 3. the probability that the search found the truth's mode at all, as a function of the touch
-   count (:meth:`~tactojax.localize.BeliefCalibration.found_probability`), by the same loss
-   (:func:`fit_found_probability`). Without it, one temperature has to serve beliefs of one
+   count and the touches' contact area (:meth:`~tactojax.localize.BeliefCalibration.found_probability`;
+   its growth with the area is the library's, fit once on the catalog objects), by the same
+   loss (:func:`fit_found_probability`). Without it, one temperature has to serve beliefs of one
    touch, whose hypotheses often miss the truth altogether, and of six, whose rarely do: on the
    catalog objects' calibration grasps one-touch beliefs said 0.25-0.35 on average where 7-26 %
    were right, while six-touch beliefs were calibrated.
@@ -59,7 +60,8 @@ from tactojax import _struct as struct
 from tactojax.localize._belief import WITHIN_MM, BeliefSettings, PoseBelief, belief_terms, hypothesis_distances
 from tactojax.localize._compile import top_level_jit
 from tactojax.localize._episode_beliefs import TestEpisodes, episode_beliefs
-from tactojax.localize._map import DEFAULT_FOUND, BeliefCalibration, LocalizationMap
+from tactojax.localize._map import (DEFAULT_FOUND, FOUND_CONTACT_GROWTH, BeliefCalibration, LocalizationMap,
+                                    found_log_odds)
 
 TEMPERATURES = tuple(float(t) for t in np.geomspace(0.002, 1.0, 28))
 """Candidate temperatures of the geometric log-likelihood."""
@@ -71,6 +73,9 @@ FOUND_OFFSETS = tuple(float(x) for x in np.arange(-3.0, 8.01, 0.25))
 """Candidate log-odds that the search found the truth's mode after one touch (8: it always does)."""
 FOUND_SLOPES = tuple(float(x) for x in np.arange(0.0, 8.01, 0.25))
 """Candidate growths of those log-odds with the log of the touch count."""
+FOUND_CONTACTS = tuple(float(x) for x in np.arange(0.0, 3.01, 0.25))
+"""Candidate growths of those log-odds with the log of the touches' mean contact area, when it is
+fit too (never negative: a larger contact never makes the search miss more often)."""
 
 
 @struct.dataclass
@@ -85,6 +90,8 @@ class BeliefRecord:
     """Which hypothesis slots hold one."""
     touches: Int[Array, ""]
     """How many touches the belief holds."""
+    contact_mm2: Float[Array, ""]
+    """Their mean contact area, mm²."""
     same_pose: Bool[Array, "M M"]
     """Hypotheses within 2 mm of each other, up to the object's symmetry."""
     truth: Bool[Array, "M"]
@@ -102,6 +109,7 @@ def _records(view: LocalizationMap, beliefs: PoseBelief, settings: BeliefSetting
         truth = hypothesis_distances(belief, belief.T_world_reference, symmetric=True)
         valid = jnp.isfinite(belief.log_weights)
         return BeliefRecord(geometry=geometry, similarity=similarity, valid=valid, touches=belief.touches,
+                            contact_mm2=belief.mean_contact_mm2,
                             same_pose=same_pose <= WITHIN_MM, truth=(truth <= WITHIN_MM) & valid)
 
     return jax.lax.map(record, beliefs)
@@ -156,9 +164,12 @@ def _mass_near_best(records: BeliefRecord, calibration: BeliefCalibration) -> tu
     return np.sum(np.where(records.same_pose[rows, best], weights, 0.0), axis=1), records.truth[rows, best]
 
 
-def _found(offset: float, slope: float, touches: np.ndarray) -> np.ndarray:
-    """:meth:`~tactojax.localize.BeliefCalibration.found_probability` in numpy (grid searches)."""
-    return 1.0 / (1.0 + np.exp(-(offset + slope * np.log(np.maximum(touches, 1)))))
+def _found(calibration: BeliefCalibration, records: BeliefRecord) -> np.ndarray:
+    """(N,) :meth:`~tactojax.localize.BeliefCalibration.found_probability` of every record's
+    belief, in numpy."""
+    log_odds = found_log_odds(float(calibration.found_offset), float(calibration.found_slope),
+                              float(calibration.found_contact), records.touches, records.contact_mm2)
+    return 1.0 / (1.0 + np.exp(-log_odds))
 
 
 def predict_within(records: BeliefRecord, calibration: BeliefCalibration) -> tuple[np.ndarray, np.ndarray]:
@@ -166,8 +177,7 @@ def predict_within(records: BeliefRecord, calibration: BeliefCalibration) -> tup
     (:meth:`~tactojax.localize.PoseBelief.probability_within`), and (N,) whether their best
     hypothesis was within 2 mm of the truth (numpy)."""
     near, happened = _mass_near_best(records, calibration)
-    found = _found(float(calibration.found_offset), float(calibration.found_slope), records.touches)
-    return near * found, happened
+    return near * _found(calibration, records), happened
 
 
 def truth_probability(records: BeliefRecord, calibration: BeliefCalibration) -> np.ndarray:
@@ -204,15 +214,27 @@ def _scales(temperature: float, appearance: float, exponent: float) -> BeliefCal
                              fusion_exponent=np.float32(exponent))
 
 
-def fit_found_probability(records: BeliefRecord, calibration: BeliefCalibration) -> BeliefCalibration:
+def fit_found_probability(records: BeliefRecord, calibration: BeliefCalibration, *,
+                          contact: float | None = FOUND_CONTACT_GROWTH) -> BeliefCalibration:
     """``calibration`` with the probability that the search found the truth's mode
     (:meth:`~tactojax.localize.BeliefCalibration.found_probability`) fit on ``records`` (numpy,
     e.g. several maps' pooled): the offset and slope of the grid :data:`FOUND_OFFSETS` x
-    :data:`FOUND_SLOPES` that minimise :func:`within_log_loss` at ``calibration``'s scales."""
+    :data:`FOUND_SLOPES` that minimise :func:`within_log_loss` at ``calibration``'s scales, with
+    the growth with the contact area fixed at ``contact`` (default: the library's
+    :data:`~tactojax.localize._map.FOUND_CONTACT_GROWTH`; 0: the term as it was before the
+    contact area entered it), or, with ``contact=None``, fit too over :data:`FOUND_CONTACTS` (the
+    first of equal losses: the smallest; it needs calibration grasps with many small touches)."""
     near, happened = _mass_near_best(records, calibration)
-    offset, slope = min(itertools.product(FOUND_OFFSETS, FOUND_SLOPES),
-                        key=lambda grid: within_log_loss(near * _found(*grid, records.touches), happened))
-    return calibration.replace(found_offset=np.float32(offset), found_slope=np.float32(slope))
+    grid = np.array(list(itertools.product(FOUND_OFFSETS, FOUND_SLOPES)))  # (K, 2)
+    best_loss, best = np.inf, None
+    for growth in FOUND_CONTACTS if contact is None else (float(contact),):  # one at a time: (K, N) arrays
+        log_odds = found_log_odds(grid[:, :1], grid[:, 1:], growth, records.touches[None], records.contact_mm2[None])
+        losses = np.mean(log_losses(near[None] / (1.0 + np.exp(-log_odds)), happened[None]), axis=1)
+        if losses.min() < best_loss:
+            best_loss, best = losses.min(), (*grid[int(np.argmin(losses))], growth)
+    offset, slope, growth = best
+    return calibration.replace(found_offset=np.float32(offset), found_slope=np.float32(slope),
+                               found_contact=np.float32(growth))
 
 
 def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = None, *,
@@ -246,7 +268,8 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
     Returns:
         the fitted :class:`BeliefCalibration` and a JSON-ready report (``loss``: the within log
         loss, ``truth_loss``: the truth's, ``accuracy``: the share of best hypotheses within
-        2 mm, ``beliefs``: how many records, and the scales).
+        2 mm, ``beliefs``: how many records, ``contact_mm2``: the median contact area of the
+        one-touch beliefs (the object's typical touch, mm²; None without any), and the scales).
 
     Raises:
         ValueError: no record holds a hypothesis (nothing to fit), or ``search_only`` without
@@ -273,12 +296,14 @@ def fit_calibration(records: BeliefRecord, shape: BeliefCalibration | None = Non
     probability, happened = predict_within(records, fitted)
     report = {"loss": within_log_loss(probability, happened),
               "truth_loss": truth_log_loss(truth_probability(records, fitted)),
-              "accuracy": float(np.mean(happened)), "beliefs": int(usable.sum())}
+              "accuracy": float(np.mean(happened)), "beliefs": int(usable.sum()),
+              "contact_mm2": float(np.median(records.contact_mm2[records.touches == 1]))
+              if np.any(records.touches == 1) else None}
     fitted = jax.tree.map(jnp.float32, fitted)
     return fitted, {**report, **calibration_to_json(fitted)}
 
 
-CALIBRATION_FIELDS = ("temperature", "appearance", "fusion_exponent", "found_offset", "found_slope")
+CALIBRATION_FIELDS = ("temperature", "appearance", "fusion_exponent", "found_offset", "found_slope", "found_contact")
 """What a stored fit holds, in order."""
 
 
@@ -289,6 +314,9 @@ def calibration_to_json(calibration: BeliefCalibration) -> dict:
 
 def calibration_from_json(values: dict) -> BeliefCalibration:
     """The inverse of :func:`calibration_to_json`. A fit stored before the search's miss rate was
-    fit (no ``found_offset``) takes the default's (:data:`~tactojax.localize._map.DEFAULT_FOUND`)."""
-    values = {**DEFAULT_FOUND, **values}
+    fit (no ``found_offset``) takes the default's (:data:`~tactojax.localize._map.DEFAULT_FOUND`);
+    one stored before its contact term, a contact growth of 0 (the term as it was fit)."""
+    if "found_offset" not in values:  # stored before the search's miss rate was fit
+        values = {**values, **DEFAULT_FOUND}
+    values = {"found_contact": 0.0, **values}  # stored before the contact area entered it: fit without it
     return BeliefCalibration(**{name: jnp.float32(values[name]) for name in CALIBRATION_FIELDS})

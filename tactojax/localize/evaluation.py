@@ -9,6 +9,7 @@ two runs on one test set compared episode by episode (:func:`compare_evaluations
 """
 
 from tactojax.localize._active import belief_error as belief_error
+from tactojax.localize._belief import truth_against_best as truth_against_best
 from tactojax.localize._calibrate import fit_found_probability as fit_found_probability
 from tactojax.localize._calibrate import predict_within as predict_within
 from tactojax.localize._calibrate import record_beliefs as record_beliefs
@@ -71,5 +72,6 @@ __all__ = [
     "record_beliefs",
     "sequence_order",
     "share_interval",
+    "truth_against_best",
     "within_log_loss",
 ]

@@ -201,6 +201,52 @@ def test_one_touch_off_the_grid_is_found(bumps_view, synthetic, belief_settings)
     assert int(belief.touches) == 1 and np.isfinite(float(belief.log_evidence))
 
 
+def test_the_reported_probability_reads_the_touches_contact_area(bumps_view, synthetic, belief_settings):
+    """Each touch's contact area (its mask, mm²) is remembered, and P(within 2 mm) is the mass near
+    the best times P(search found) at the touches' count and mean area: a calibration whose
+    search misses less after large touches reports more for the same belief of large ones."""
+    from tactojax.localize._map import REFERENCE_CONTACT_MM2
+
+    view = bumps_view
+    belief = empty_belief(view, belief_settings)
+    areas = []
+    for x, y in ((1.5, -1.0), (-2.0, 1.0)):
+        touch = synthetic.touch(synthetic.bumps, synthetic.sensor_pose(x, y))
+        areas.append(float(np.sum(np.asarray(touch.mask))) * view.mm_per_px**2)
+        belief = update(view, belief, touch, synthetic.sensor_pose(x, y), belief_settings)
+    np.testing.assert_allclose(np.asarray(belief.contact_mm2)[:2], areas, rtol=1e-5)
+    assert float(belief.mean_contact_mm2) == pytest.approx(np.mean(areas), rel=1e-5)
+    blind = belief.replace(calibration=belief.calibration.replace(
+        found_offset=jnp.float32(0.5), found_slope=jnp.float32(0.0), found_contact=jnp.float32(0.0)))
+    aware = blind.replace(calibration=blind.calibration.replace(found_contact=jnp.float32(2.0)))
+    ratio = float(aware.probability_within()) / float(blind.probability_within())
+    log_area = math.log(np.mean(areas) / REFERENCE_CONTACT_MM2)
+    expected = (1 + math.exp(-0.5)) / (1 + math.exp(-(0.5 + 2.0 * log_area)))
+    assert ratio == pytest.approx(expected, rel=1e-4)
+    assert np.mean(areas) > REFERENCE_CONTACT_MM2 and ratio > 1.0  # larger touches than the reference
+
+
+def test_the_truth_against_the_best_says_which_of_search_and_likelihood_missed(bumps_view, synthetic,
+                                                                             belief_settings):
+    """At the true pose, refined by the belief's own ICP, a touch on the bumps scores at least as
+    well as the belief's best (found: the best is the truth); a pose 4 mm off, refined from there,
+    scores worse (the likelihood would not have preferred it). Both equal the weighing by hand."""
+    from tactojax.localize._belief import weigh
+    from tactojax.localize.evaluation import truth_against_best
+
+    T_true = synthetic.sensor_pose(1.5, -1.0)
+    touch = synthetic.touch(synthetic.bumps, T_true)
+    belief = update(bumps_view, empty_belief(bumps_view, belief_settings), touch, jaxlie.SE3.identity(),
+                    belief_settings)
+    best, truth = (float(x) for x in truth_against_best(bumps_view, belief, T_true, belief_settings))
+    assert best == pytest.approx(float(weigh(bumps_view, belief, belief.best, belief_settings)), abs=1e-4)
+    assert truth >= float(weigh(bumps_view, belief, T_true, belief_settings)) - 1e-5
+    assert truth >= best - 0.05
+    _, off = (float(x) for x in truth_against_best(bumps_view, belief, synthetic.sensor_pose(5.5, -1.0),
+                                                   belief_settings))
+    assert off < best
+
+
 def test_stacked_maps_localize_every_map_as_the_map_itself(bumps_view, ridges_view, synthetic, belief_settings):
     """StackedMaps concatenates maps of different sizes (imprints, surface grid, symmetry copies)
     without padding each: one compiled update takes (stack, index) for every map, and finds
@@ -309,7 +355,7 @@ def test_cues_sum_over_the_touches_held_and_never_read_an_empty_slot(bumps_view,
         T = synthetic.sensor_pose(x, y)
         touch = synthetic.touch(synthetic.bumps, T)
         touches.append((_evidence(touch, bumps_view, settings), touch.feature / jnp.linalg.norm(touch.feature), T))
-        belief = remember(belief, touches[-1][0], touch.feature, touches[0][2].inverse() @ T)
+        belief = remember(belief, touches[-1][0], touch.feature, jnp.float32(1.0), touches[0][2].inverse() @ T)
     assert np.asarray(belief.touch_valid).tolist() == [True, True, False]
     stray = touches[0][0]  # a whole touch in the empty slot, valid points and all
     belief = belief.replace(evidence=jax.tree.map(lambda slots, x: slots.at[2].set(x), belief.evidence, stray),
@@ -352,7 +398,7 @@ def test_symmetric_map_keeps_both_copies_and_counts_them_as_one(synthetic, belie
     assert np.sort(np.asarray(plain_mass))[-2] > 0.3  # two modes of similar weight
     assert np.max(np.asarray(symmetric_mass)) > 0.9  # one mode, up to the symmetry
     # P(within 2 mm): the mass near the best, times P(the search found the truth's mode).
-    found = float(belief.calibration.found_probability(belief.touches))
+    found = float(belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2))
     assert float(beliefs["plain"].probability_within()) < 0.7 * found
     assert float(belief.probability_within()) > 0.9 * found
 
@@ -369,7 +415,8 @@ def test_a_touch_free_to_slide_keeps_its_spread(bumps_view, ridges_view, synthet
         touch = synthetic.touch(getattr(synthetic, name), T_true)
         belief = update(view, empty_belief(view, belief_settings), touch, jaxlie.SE3.identity(), belief_settings)
         # The mass near the best (P(within 2 mm) before the search's miss rate).
-        within[name] = float(belief.probability_within()) / float(belief.calibration.found_probability(belief.touches))
+        within[name] = float(belief.probability_within()) / float(
+            belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2))
         probes = neighbourhood_probes(view, belief, belief.best, belief_settings.probe_mm)
         evidence = _evidence(touch, view, belief_settings)
         points = np.asarray(evidence.contact)[np.asarray(evidence.contact_valid)]
@@ -420,7 +467,7 @@ def test_screened_candidates_are_the_exhaustive_best(bumps_view, synthetic, beli
     touch = synthetic.touch(synthetic.bumps, synthetic.sensor_pose(2.2, -1.1, 6.0)).replace(feature=feature)
     settings = dataclasses.replace(belief_settings, screened=24)  # of 4 sources x 27 offsets = 108
     evidence = _evidence(touch, view, settings)
-    belief = remember(empty_belief(view, settings), evidence, feature, jaxlie.SE3.identity())
+    belief = remember(empty_belief(view, settings), evidence, feature, jnp.float32(1.0), jaxlie.SE3.identity())
     poses, scores = jax.jit(candidates, static_argnames=("settings",))(
         view, belief, evidence, feature, jnp.float32(20.0), jaxlie.SE3.identity(), settings)
     sources, _, valid = rank_imprints(view.features @ (feature / jnp.linalg.norm(feature)), view.openings,

@@ -5,6 +5,7 @@ import pytest
 
 from tactojax.localize import BeliefCalibration, fit_calibration
 from tactojax.localize._calibrate import BeliefRecord, predict_within
+from tactojax.localize._map import REFERENCE_CONTACT_MM2
 
 
 def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12, appearance=0.0):
@@ -19,8 +20,9 @@ def _synthetic_records(rng, temperature, exponent, count=3000, hypotheses=12, ap
     truth_index = np.array([rng.choice(hypotheses, p=w) for w in weights])
     truth = np.arange(hypotheses)[None, :] == truth_index[:, None]
     return BeliefRecord(geometry=geometry, similarity=similarity, valid=np.ones_like(truth),
-                        touches=touches, same_pose=np.broadcast_to(np.eye(hypotheses, dtype=bool),
-                                                                   (count, hypotheses, hypotheses)), truth=truth)
+                        touches=touches, contact_mm2=np.full(count, REFERENCE_CONTACT_MM2),
+                        same_pose=np.broadcast_to(np.eye(hypotheses, dtype=bool), (count, hypotheses, hypotheses)),
+                        truth=truth)
 
 
 @pytest.mark.parametrize("temperature, exponent", [(0.02, 0.5), (0.1, 0.0)])
@@ -82,10 +84,12 @@ def test_an_overconfident_temperature_is_worse_than_the_fit():
     assert abs(fitted_probability.mean() - happened.mean()) < 0.03
 
 
-def _drop_truth(rng, records, offset, slope):
+def _drop_truth(rng, records, offset, slope, contact=0.0):
     """The records with the truth removed (a search that missed it) at the rate
-    1 - sigmoid(offset + slope * log touches)."""
-    found = 1.0 / (1.0 + np.exp(-(offset + slope * np.log(records.touches))))
+    1 - sigmoid(offset + slope * log touches + contact * log(area / reference area)), written
+    out here, independently of the library's :func:`found_log_odds`."""
+    log_area = np.log(records.contact_mm2 / REFERENCE_CONTACT_MM2)
+    found = 1.0 / (1.0 + np.exp(-(offset + slope * np.log(records.touches) + contact * log_area)))
     missed = rng.random(found.shape) > found
     return records.replace(truth=records.truth & ~missed[:, None])
 
@@ -112,6 +116,40 @@ def test_fit_recovers_how_often_the_search_misses_the_truth():
     assert overconfident[records.touches == 1].mean() > 1.5 * happened[records.touches == 1].mean()  # twice, in truth
 
 
+def test_fit_recovers_how_the_contact_area_moves_the_missed_search():
+    """The search misses the truth more often after small touches (log-odds growing by 1.5 per
+    e-fold of contact area): the fit recovers that growth, and the reported P(within 2 mm) matches
+    what happened for small and large touches alike, which a term of the touch count alone cannot
+    (it is right on average and wrong on both halves)."""
+    from tactojax.localize.evaluation import fit_found_probability
+
+    rng = np.random.default_rng(11)
+    records = _synthetic_records(rng, 0.02, 0.5, count=6000)
+    records = records.replace(contact_mm2=np.exp(rng.uniform(np.log(0.5), np.log(200.0), 6000)))
+    records = _drop_truth(rng, records, offset=1.0, slope=1.0, contact=1.5)
+    complete = BeliefCalibration(temperature=np.float32(0.02), appearance=np.float32(0.0),
+                                 fusion_exponent=np.float32(0.5))
+    fitted = fit_found_probability(records, complete, contact=None)  # the growth fit too
+    assert float(fitted.found_contact) == pytest.approx(1.5, abs=0.3)
+    area_blind = fit_found_probability(records, complete, contact=0.0)
+    assert float(area_blind.found_contact) == 0.0
+    fixed = fit_found_probability(records, complete, contact=1.0)  # a growth given: offset and slope fit at it
+    assert float(fixed.found_contact) == 1.0
+    small = records.contact_mm2 < 5.0
+    for calibration, tolerance in ((fitted, 0.03), (area_blind, None)):
+        probability, happened = predict_within(records, calibration)
+        gaps = [probability[part].mean() - happened[part].mean() for part in (small, ~small)]
+        if tolerance is None:
+            assert gaps[0] > 0.05 and gaps[1] < -0.05  # overconfident on small touches, under on large
+        else:
+            assert max(abs(g) for g in gaps) < tolerance
+    # The probability the belief reports, in JAX, is the same function of the touches and the area.
+    touches, area = np.array([1, 2, 6]), np.array([0.5, 20.0, 200.0])
+    expected = 1.0 / (1.0 + np.exp(-(float(fitted.found_offset) + float(fitted.found_slope) * np.log(touches)
+                                     + float(fitted.found_contact) * np.log(area / REFERENCE_CONTACT_MM2))))
+    np.testing.assert_allclose(np.asarray(fitted.found_probability(touches, area)), expected, rtol=1e-5)
+
+
 def test_search_only_keeps_the_scales_and_fits_the_missed_search():
     """``search_only``: the given scales stay exactly (even wrong ones), and the missed-search rate
     is recovered as by :func:`fit_found_probability` at those scales."""
@@ -135,7 +173,7 @@ def test_search_only_keeps_the_scales_and_fits_the_missed_search():
         fit_calibration(records, search_only=True)
 
 
-def test_a_fit_stored_before_the_search_term_takes_the_default():
+def test_a_fit_stored_before_the_search_term_takes_the_default_and_one_before_the_contact_term_none():
     from tactojax.localize import calibration_from_json, calibration_to_json
     from tactojax.localize._map import DEFAULT_FOUND
 
@@ -143,8 +181,12 @@ def test_a_fit_stored_before_the_search_term_takes_the_default():
     calibration = calibration_from_json(old)
     assert float(calibration.found_offset) == pytest.approx(DEFAULT_FOUND["found_offset"])
     assert float(calibration.found_slope) == pytest.approx(DEFAULT_FOUND["found_slope"])
+    assert float(calibration.found_contact) == pytest.approx(DEFAULT_FOUND["found_contact"])
     again = calibration_from_json(calibration_to_json(calibration.replace(found_offset=np.float32(-1.5))))
     assert float(again.found_offset) == -1.5 and float(again.temperature) == pytest.approx(0.1)
+    # A search term fit before the contact area entered it was fit without it: it reads as a growth of 0.
+    before_contact = calibration_from_json({**old, "found_offset": 1.0, "found_slope": 2.0})
+    assert float(before_contact.found_contact) == 0.0 and float(before_contact.found_offset) == 1.0
 
 
 def test_nothing_to_fit_is_a_clear_error():
