@@ -76,7 +76,7 @@ class BeliefCalibration:
     REFERENCE_CONTACT_MM2))`` for ``n`` touches of mean contact area ``a``. A pinpoint touch (a
     jaw grazing an edge: a few dozen pixels) leaves the search far more often without the truth
     than a full one: on the scissors' and the screwdriver's grasps at all four turns, one-touch
-    beliefs under 10 mm² of contact said 0.30 where 7-9 % were right, with one term for all
+    beliefs under 10 mm² of contact said 0.30 where 5-9 % were right, with one term for all
     (the full touches' beliefs were underconfident by as much). The offset and slope are fit per
     map; the growth with the area is the library's :data:`FOUND_CONTACT_GROWTH`.
     """
