@@ -125,6 +125,17 @@ def calibrate_map_file(path, tactile_map, episodes, *, fingers: int = 2, fit_sha
     return calibration, report
 
 
+def typical_touch_found(calibration, report: dict) -> tuple[float, float]:
+    """P(search found) after one touch of the map's object, at its typical size: (the median
+    contact area of the single touches of its calibration grasps, mm², or the reference area
+    for a fit stored before that was recorded; P under ``calibration``). ``report``: the fit's
+    report (:func:`calibrate_map_file`'s, as stored in the map's header)."""
+    from tactojax.localize._map import REFERENCE_CONTACT_MM2
+
+    area = report.get("contact_mm2") or REFERENCE_CONTACT_MM2
+    return area, float(calibration.found_probability(1, area))
+
+
 def store_calibration(path, report: dict) -> None:
     """Write a fit's report (:func:`calibrate_map_file`'s, with its encoder) into the map's header,
     where every command that runs the belief reads it; the file keeps its arrays and format."""

@@ -86,16 +86,15 @@ def _map_symmetry(header: dict) -> str:
 
 def _map_calibration(header: dict) -> str:
     """The belief calibration the map's header stores, in words (``calibrate-belief``, ``map-catalog --calibrate``)."""
+    from tactojax.cli._calibrate_belief import typical_touch_found
     from tactojax.localize import calibration_from_json
-    from tactojax.localize._map import REFERENCE_CONTACT_MM2
 
     fit = header.get("metadata", {}).get("belief_calibration")
     if fit is None:
         return "the default (no fit of its own: `calibrate-belief` or `map-catalog --calibrate`)"
     kind = "the search term" if fit.get("search_only") else "every scale" if fit.get("shape_fit") else "the sharpness"
     calibration = calibration_from_json(fit)
-    typical = fit.get("contact_mm2") or REFERENCE_CONTACT_MM2  # the median touch of its calibration grasps
-    found = float(calibration.found_probability(1, typical))
+    typical, found = typical_touch_found(calibration, fit)
     pinpoint = (f", {float(calibration.found_probability(1, 1.0)):.2f} after one of 1 mm²"
                 if float(calibration.found_contact) > 0 else "")
     return (f"{kind} fit on {fit.get('episodes', '?')} episodes of its object's grasps ({fit.get('fingers', '?')} "

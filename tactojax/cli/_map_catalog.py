@@ -179,10 +179,9 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
     scale (``calibrate-belief``'s rule)."""
     import jax
 
-    from tactojax.cli._calibrate_belief import calibrate_map_file, store_calibration
+    from tactojax.cli._calibrate_belief import calibrate_map_file, store_calibration, typical_touch_found
     from tactojax.io import DEFAULT_ENCODER, encoder_label
     from tactojax.localize import calibration_to_json
-    from tactojax.localize._map import REFERENCE_CONTACT_MM2
     from tactojax.localize.evaluation import load_test_episodes
     from tactojax.simulate import GraspsProtocol, simulate_to_dataset
 
@@ -201,9 +200,8 @@ def _calibrate(path: Path, tactile_map, obj, spec, model, encoder, encoder_name:
     store_calibration(path, report)
     if not args.keep_data:
         shutil.rmtree(data)
-    typical = report.get("contact_mm2") or REFERENCE_CONTACT_MM2  # the object's median touch
-    return {"episodes": args.calibrate, "contact_mm2": typical,
-            "found_after_1_touch": round(float(calibration.found_probability(1, typical)), 3),
+    typical, found = typical_touch_found(calibration, report)
+    return {"episodes": args.calibrate, "contact_mm2": typical, "found_after_1_touch": round(found, 3),
             **calibration_to_json(calibration)}
 
 
