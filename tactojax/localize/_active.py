@@ -17,8 +17,19 @@ belief-weighted mean over *h* of the objective after that reweighing, less its v
 
 A grasp predicted to miss under *h* brings no touch there, but its failure reweighs every *h'*
 as the belief will (:func:`observe_failed_grasp`: it rules out the poses at which the grasp
-would close). Everything has fixed shapes: one compilation per map, settings and candidate count,
-vmapped over candidates (:func:`next_grasp`).
+would close).
+
+A miss is a spent grasp, so the candidates likeliest to close are ranked first. The modes say
+where a grasp closes only if the belief's search found the truth's mode, which the belief itself
+rates (:meth:`~tactojax.localize.BeliefCalibration.found_probability`: low after grazing
+touches). Where it did not, only a grasp across a contact already felt
+(:func:`closes_across_felt`) is known to touch the object, so P(close) is the modes' closing
+mass weighed by P(found), plus P(not found) for those, and among the likeliest to close the
+expected objective weighs the gain by P(found) and, for those, P(found) one grasp later by
+P(not found). :func:`propose_grasps` draws half its candidates across a felt contact.
+
+Everything has fixed shapes: one compilation per map, settings and candidate count, vmapped over
+candidates (:func:`next_grasp`).
 """
 
 from __future__ import annotations
@@ -73,6 +84,17 @@ class ActiveSettings:
     a proposal is drawn from: the mapping protocol's turns), degrees."""
     oversample: int = 2
     """Proposed grasps: draws per kept candidate (those predicted to miss are dropped first)."""
+    across_felt: float = 0.5
+    """Proposed grasps: the share drawn across a contact already felt (:func:`propose_grasps`):
+    through one of the touches' contact points, closing at right angles (within
+    ±``yaw_range_deg``) to the grasp that felt it. They touch the object whatever its pose."""
+    clearance_mm: float = 5.0
+    """A grasp is counted on to close at a pose only if its open jaws start at least this far
+    from the object there (:attr:`~tactojax.localize.active.PredictedGrasp.clearance_mm`): a
+    grasp that barely fits flips to a collision with a few mm of pose or prediction error, mm."""
+    felt_margin_mm: float = 2.0
+    """A felt contact point counts as inside a grasp's swept gels (:func:`closes_across_felt`)
+    this far inside their border, mm."""
     stop_probability: float = 0.95
     """The stopping rule: stop when the belief's P(within 2 mm) reaches this."""
     predicted_close_misses: float = 0.05
@@ -90,7 +112,15 @@ class GraspRanking:
     gain: Float[Array, "C"]
     """Expected gain of every candidate (input order): in P(within 2 mm), or in nats."""
     closes: Float[Array, "C"]
-    """Belief mass (over the hypotheses used) of the poses at which the grasp closes on the object."""
+    """Belief mass (over the hypotheses used) of the poses at which the grasp closes on the object,
+    its jaws starting ``clearance_mm`` or more from it."""
+    across_felt: Bool[Array, "C"]
+    """Whether the grasp closes across a contact already felt (it touches the object whatever
+    its pose: :func:`closes_across_felt`)."""
+    close_probability: Float[Array, "C"]
+    """P(the grasp closes on the object): ``closes`` where the belief's search found the truth's
+    mode; where it did not, 1 for a grasp across a felt contact (``across_felt``) and 0 for any
+    other; weighed by the belief's own P(search found)."""
     contact_area: Float[Array, "C"]
     """Predicted contact rays (both fingers) at the most likely pose (largest-contact baseline)."""
 
@@ -162,9 +192,10 @@ def _predicted_log_likelihoods(view: LocalizationMap, prediction: PredictedGrasp
 
 
 def grasp_gain(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_world_gripper: jaxlie.SE3,
-               settings: ActiveSettings = ActiveSettings()) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
-    """Expected gain of one candidate grasp (see the module docstring); the belief mass of the
-    poses at which it closes; and its predicted contact rays at the most likely pose."""
+               settings: ActiveSettings = ActiveSettings()) -> tuple[Float[Array, ""], ...]:
+    """Expected gain of one candidate grasp (see the module docstring); the belief mass (over the
+    leading modes) of the poses at which it closes, its jaws starting ``clearance_mm`` or more
+    from the object; and its predicted contact rays at the most likely pose."""
     T_world_object, weights, distance = leading_hypotheses(belief, settings.hypotheses)
     mode = jnp.argmax(distance <= settings.within_mm, axis=1)  # the most likely hypothesis near each
     predictions = jax.vmap(lambda T: predict_grasp(grid, view.surface, T, T_world_gripper, gel_size_mm(view),
@@ -185,7 +216,7 @@ def grasp_gain(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
     posterior = jnp.where(predictions.valid[:, None], posterior, failed[None, :])
     value = jax.vmap(lambda w: _objective(w, distance, mode, settings))(posterior)
     gain = jnp.sum(weights * value) - _objective(weights, distance, mode, settings)
-    closes = jnp.sum(jnp.where(predictions.valid, weights, 0.0))
+    closes = jnp.sum(jnp.where(predictions.valid & (predictions.clearance_mm >= settings.clearance_mm), weights, 0.0))
     return gain, closes, jnp.sum(predictions.mask[0]).astype(jnp.float32)
 
 
@@ -236,16 +267,66 @@ def next_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
         settings: hypotheses, objective, prediction (static).
 
     Returns:
-        the :class:`GraspRanking`: the candidates that close at the largest belief mass (over
-        the leading modes) come first, by gain among themselves; one that closes under no
-        mode last.
+        the :class:`GraspRanking`: the candidates likeliest to close on the object
+        (``close_probability`` within ``predicted_close_misses``, or within P(search missed), of
+        the likeliest) come first, by expected objective among themselves (the gain where the
+        search found the truth; P(found) one grasp later for a grasp across a felt contact where
+        it did not); one with no chance of closing last.
     """
     gain, closes, area = jax.vmap(lambda T: grasp_gain(view, grid, belief, T, settings))(T_world_gripper)
-    # A miss is a spent grasp, and the truth may lie outside the leading modes: the
-    # candidates that close at the most of them come first, by gain among themselves.
-    surest = closes >= jnp.max(closes) - 1e-6
-    rank = jnp.where(closes > 0, gain + jnp.where(surest, 10.0, 0.0), -jnp.inf)
-    return GraspRanking(order=jnp.argsort(-rank), gain=gain, closes=closes, contact_area=area)
+    felt, pressing, felt_valid = felt_contacts(belief)
+    across = jax.vmap(lambda T: closes_across_felt(T, felt, pressing, felt_valid, gel_size_mm(view), settings))(
+        T_world_gripper)
+    # A miss is a spent grasp. The leading modes say where a grasp closes only if the belief's
+    # search found the truth's mode. Where it did not (its hypotheses can be turned by a right
+    # angle: the screwdriver lying along the jaws), only a grasp across a felt contact is known
+    # to touch the object. The candidates likeliest to close come first (differences below the
+    # prediction's own error rate, or below the chance that the modes are wrong, are none).
+    # Among them, the expected objective: the gain where the search found the truth; where it
+    # did not, a grasp that surely closes gives it another touch, and P(found) one grasp later.
+    found = belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2)
+    close_probability = found * closes + (1.0 - found) * across
+    found_after = belief.calibration.found_probability(belief.touches + settings.fingers, belief.mean_contact_mm2)
+    value = found * gain + (1.0 - found) * across * found_after
+    tolerance = jnp.maximum(settings.predicted_close_misses, 1.0 - found)
+    surest = close_probability >= jnp.max(close_probability) - tolerance
+    rank = jnp.where(close_probability > 0, value + jnp.where(surest, 10.0, 0.0), -jnp.inf)
+    return GraspRanking(order=jnp.argsort(-rank), gain=gain, closes=closes, across_felt=across,
+                        close_probability=close_probability, contact_area=area)
+
+
+def felt_contacts(belief: PoseBelief) -> tuple[Float[Array, "N 3"], Float[Array, "N 3"], Bool[Array, "N"]]:
+    """Every contact point of the touches the belief holds, in its world (robot) frame, mm: where
+    the object's surface is known to be whatever its pose; the pressing direction of the touch
+    that felt each (its gel's normal, into the object: the closing axis of that grasp); and which
+    are valid. (T * P, 3), (T * P, 3) and (T * P,)."""
+    T_world_touch = belief.T_world_reference @ belief.T_reference_touch  # (T,)
+    points = jax.vmap(lambda T, p: jax.vmap(lambda q: T @ q)(p))(T_world_touch, belief.evidence.contact)
+    pressing = jax.vmap(lambda T: T.rotation().as_matrix()[:, 2])(T_world_touch)
+    pressing = jnp.broadcast_to(pressing[:, None, :], points.shape)
+    valid = belief.evidence.contact_valid & belief.touch_valid[:, None]
+    return points.reshape(-1, 3), pressing.reshape(-1, 3), valid.reshape(-1)
+
+
+def closes_across_felt(T_world_gripper: jaxlie.SE3, points: Float[Array, "N 3"], pressing: Float[Array, "N 3"],
+                       valid: Bool[Array, "N"], gel_size_mm: tuple[float, float],
+                       settings: ActiveSettings = ActiveSettings()) -> Bool[Array, ""]:
+    """Whether a grasp closes across a felt contact: its open jaws sweep their gels over one of
+    ``points`` (felt contact points, world frame, mm; ``felt_margin_mm`` inside the gels'
+    border) with a closing axis at least 45 degrees from the grasp that felt it (``pressing``),
+    and every felt point lies between the open jaws along that axis. Such a grasp touches the
+    object whatever its pose: a point of its surface lies in the jaws' path. (A jaw may still
+    start inside the object where it was not felt: along the felt grasp's own axis, the object
+    beyond the contacts felt is unknown, and on the screwdriver lying along the jaws a jaw
+    started inside it as often as not, so that axis is excluded.)"""
+    height, width = gel_size_mm
+    local = jax.vmap(lambda q: T_world_gripper.inverse() @ q)(points)  # gripper frame: x along the jaw, z approach
+    facing = ((jnp.abs(local[:, 0]) <= 0.5 * width - settings.felt_margin_mm)
+              & (jnp.abs(local[:, 2]) <= 0.5 * height - settings.felt_margin_mm))
+    between = jnp.abs(local[:, 1]) < 0.5 * settings.prediction.max_opening_mm - settings.felt_margin_mm
+    closing_axis = T_world_gripper.rotation().as_matrix()[:, 1]
+    across = jnp.abs(pressing @ closing_axis) <= jnp.cos(jnp.pi / 4)
+    return jnp.any(facing & between & across & valid) & jnp.all(between | ~valid)
 
 
 def map_box(view: LocalizationMap) -> Float[Array, "2 3"]:
@@ -265,18 +346,24 @@ def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid,
     top-down gripper pose (the simulator's convention) with yaw uniform within
     ±``yaw_range_deg`` and centre uniform over the map's bounding box at that pose as seen in
     the plane of the gripper, centred on it along the closing axis (as the new-grasps
-    protocol). Of ``oversample * count`` draws, those predicted to close on the object at the
-    pose they were drawn from come first.
+    protocol). Of ``oversample`` times as many draws as are kept, those predicted to close on
+    the object at the pose they were drawn from are kept first. A share ``across_felt`` of the
+    candidates (first) are instead drawn across a contact already felt (:func:`_across_felt`):
+    they close whatever the pose, which is what counts when the belief's search has likely
+    missed the truth (:func:`next_grasp`).
 
     Returns:
         (C,) commanded gripper poses in the belief's world frame (mm), and whether each is
-        predicted to close on the object.
+        predicted to close on the object (at the pose it was drawn from; the most likely for
+        those across a felt contact).
     """
-    draws = count * settings.oversample
+    across = int(round(count * settings.across_felt))
+    drawn = count - across
+    draws = drawn * settings.oversample
     bounds = map_box(view)
     box = jnp.stack(jnp.meshgrid(*bounds.T, indexing="ij"), axis=-1).reshape(-1, 3)  # (8, 3)
     T_world_object, weights, _ = leading_hypotheses(belief, settings.hypotheses)
-    mode_key, turn_key, yaw_key, u_key, v_key = jax.random.split(key, 5)
+    mode_key, turn_key, yaw_key, u_key, v_key, felt_key = jax.random.split(key, 6)
     mode = jax.random.choice(mode_key, settings.hypotheses, (draws,), p=weights)
     x_axis = jax.vmap(lambda T: T.rotation().as_matrix()[:, 0])(take(T_world_object, mode))
     turn = jnp.arctan2(x_axis[:, 1], x_axis[:, 0]) + 0.5 * jnp.pi * jax.random.randint(turn_key, (draws,), 0, 4)
@@ -291,10 +378,37 @@ def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid,
         centre = centre.at[2].set(jnp.min(z) + v_draw * (jnp.max(z) - jnp.min(z)))
         return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rotation), centre)
 
+    def closes(T_object, T_gripper):
+        return predict_grasp(grid, view.surface, T_object, T_gripper, gel_size_mm(view), settings.prediction,
+                             fingers=settings.fingers).valid
+
     T_drawn = take(T_world_object, mode)
     poses = jax.vmap(pose)(T_drawn, yaw, jax.random.uniform(u_key, (draws,)), jax.random.uniform(v_key, (draws,)))
-    closes = jax.vmap(lambda T_object, T: predict_grasp(grid, view.surface, T_object, T, gel_size_mm(view),
-                                                        settings.prediction, fingers=settings.fingers).valid)(
-        T_drawn, poses)
-    _, keep = jax.lax.top_k(closes.astype(jnp.float32) + jnp.linspace(0.5, 0.0, draws), count)
-    return take(poses, keep), closes[keep]
+    drawn_closes = jax.vmap(closes)(T_drawn, poses)
+    _, keep = jax.lax.top_k(drawn_closes.astype(jnp.float32) + jnp.linspace(0.5, 0.0, draws), drawn)
+    felt = _across_felt(felt_key, belief, across, gel_size_mm(view), settings)
+    felt_closes = jax.vmap(lambda T: closes(take(T_world_object, 0), T))(felt)
+    poses = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), felt, take(poses, keep))
+    return poses, jnp.concatenate([felt_closes, drawn_closes[keep]])
+
+
+def _across_felt(key: PRNGKeyArray, belief: PoseBelief, draws: int, gel_size_mm: tuple[float, float],
+                 settings: ActiveSettings) -> jaxlie.SE3:
+    """(draws,) top-down grasps across a felt contact: each through one of the belief's contact
+    points (uniform over them), closing at right angles to the touch that felt it (within
+    ±``yaw_range_deg``), the gels' centre moved up to a quarter of their width into the object
+    (along that touch's pressing direction) and up to an eighth of their height up or down: the
+    point stays inside the swept gels (:func:`closes_across_felt`)."""
+    height, width = gel_size_mm
+    points, pressing, valid = felt_contacts(belief)
+    point_key, yaw_key, in_key, up_key = jax.random.split(key, 4)
+    index = jax.random.choice(point_key, points.shape[0], (draws,), p=valid / jnp.maximum(jnp.sum(valid), 1))
+    inward = pressing[index].at[:, 2].set(0.0)
+    inward = inward / jnp.maximum(jnp.linalg.norm(inward, axis=1, keepdims=True), 1e-9)
+    # Gripper x (along the jaws) along the felt touch's pressing direction: closing across it.
+    yaw = jnp.arctan2(inward[:, 1], inward[:, 0]) + jnp.deg2rad(settings.yaw_range_deg) * jax.random.uniform(
+        yaw_key, (draws,), minval=-1.0, maxval=1.0)
+    centre = (points[index] + 0.25 * width * jax.random.uniform(in_key, (draws, 1)) * inward
+              + jnp.array([0.0, 0.0, 0.125 * height]) * jax.random.uniform(up_key, (draws, 1), minval=-1.0, maxval=1.0))
+    rotation = jax.vmap(lambda y: jaxlie.SO3.from_z_radians(y).as_matrix() @ _R_WORLD_GRIPPER_0)(yaw)
+    return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rotation), centre)

@@ -188,6 +188,10 @@ class PredictedGrasp:
     valid: Bool[Array, ""]
     """Whether the jaws close on the object within the opening (both touch, neither starts
     inside it, no gel indented past its thickness)."""
+    clearance_mm: Float[Array, ""]
+    """How far the open jaws start from the object along the closing axis, the nearer of the
+    two, mm (0 where one starts inside it, as far as the map knows: within its surface's known
+    band; the opening where neither would touch it)."""
 
 
 def _read(grid: MarchingGrid, points: Float[Array, "N 3"]) -> tuple[Float[Array, "N"], Bool[Array, "N"]]:
@@ -270,7 +274,7 @@ def predict_grasp(
     opening = jnp.float32(settings.max_opening_mm)
     T_object_world = T_world_object.inverse()
     xy = ray_grid(*gel_size_mm, settings).reshape(-1, 2)
-    travels, heightmaps, free, touched, collides = [], [], [], [], []
+    travels, heightmaps, free, touched, collides, clearances = [], [], [], [], [], []
     for pose in (sensor_pose, opposite_sensor_pose):
         T_object_start = T_object_world @ pose(T_world_gripper, opening)
         rotation = T_object_start.rotation().as_matrix()
@@ -289,6 +293,7 @@ def predict_grasp(
         travels.append(travel)
         touched.append(any_hit)
         collides.append(jnp.any(inside))
+        clearances.append(jnp.where(jnp.any(inside), 0.0, jnp.where(any_hit, first, opening)))
     final_opening = opening - travels[0] - travels[1]
     finger_poses = [sensor_pose, opposite_sensor_pose][:fingers]
     T_world_sensor = jax.tree.map(
@@ -300,7 +305,8 @@ def predict_grasp(
              & (jnp.max(heightmap) < settings.gel_thickness_mm))
     mask = heightmap > settings.min_indentation_mm
     return PredictedGrasp(heightmap=heightmap, mask=mask, free=~mask & jnp.stack(free[:fingers]),
-                          T_world_sensor=T_world_sensor, opening=final_opening, valid=valid)
+                          T_world_sensor=T_world_sensor, opening=final_opening, valid=valid,
+                          clearance_mm=jnp.minimum(clearances[0], clearances[1]))
 
 
 def predicted_evidence(heightmap: Float[Array, "R C"], mask: Bool[Array, "R C"], free: Bool[Array, "R C"],

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from tactojax.localize import BeliefCalibration, BeliefSettings, empty_belief
-from tactojax.localize.active import (ActiveSettings, map_marching_grid, next_grasp, observe_failed_grasp,
-                                     predict_grasp, propose_grasps, should_stop)
+from tactojax.localize.active import (ActiveSettings, closes_across_felt, map_marching_grid, next_grasp,
+                                     observe_failed_grasp, predict_grasp, propose_grasps, should_stop)
 from tactojax.objects import get_object
 
 from active_fixtures import truth_map
@@ -118,3 +118,85 @@ def test_a_failed_grasp_rules_out_the_poses_where_it_would_have_closed(gum_box):
     np.testing.assert_allclose(np.asarray(both.probabilities), [0.5, 0.5], rtol=1e-5)
     empty = empty_belief(view, BeliefSettings(hypotheses=2, max_touches=2))
     assert not np.any(np.isfinite(np.asarray(observe_failed_grasp(view, grid, empty, at_centre, settings).log_weights)))
+
+
+# A touch of the gum box's broad face (y = -11.5 mm) at the origin, pressing along +y: the
+# sensor's x along world x, its z (into the object) along world y.
+FACE_SENSOR = jaxlie.SE3.from_rotation_and_translation(
+    jaxlie.SO3.from_matrix(jnp.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])),
+    jnp.array([0.0, -11.5, 0.0]))
+
+
+def test_a_grasp_closes_across_a_felt_contact_only_at_right_angles_through_it():
+    points, pressing = jnp.array([[0.0, -11.5, 0.0]]), jnp.array([[0.0, 1.0, 0.0]])
+    valid, gel = jnp.array([True]), (24.0, 32.0)
+
+    def across(T):
+        return bool(closes_across_felt(T, points, pressing, valid, gel))
+
+    assert across(grasp(0.0, 0.0, yaw_deg=90.0))  # closing along x, through the point
+    assert across(grasp(0.0, 0.0, yaw_deg=60.0))  # 30 degrees off the right angle
+    assert not across(grasp(0.0, 0.0, yaw_deg=0.0))  # along the felt grasp's own axis
+    assert not across(grasp(0.0, 11.0, yaw_deg=90.0))  # the point 11 mm up: past the gel's border less the margin
+    two = jnp.array([[0.0, -11.5, 0.0], [80.0, -11.5, 0.0]])  # a second felt point beyond a jaw
+    assert not bool(closes_across_felt(grasp(0.0, 0.0, yaw_deg=90.0), two, jnp.tile(pressing, (2, 1)),
+                                       jnp.array([True, True]), gel))
+    assert bool(closes_across_felt(grasp(0.0, 0.0, yaw_deg=90.0), two, jnp.tile(pressing, (2, 1)),
+                                   jnp.array([True, False]), gel))  # ... unless it is not valid
+
+
+def face_touch_belief(view, found_offset, found_slope=0.0):
+    """A belief at the box's true pose (the world's) after a touch of its broad face
+    (:data:`FACE_SENSOR`), its search's P(found) set by ``found_offset`` and ``found_slope``."""
+    belief = belief_over(view, [shift(), shift(z=4.0)], [0.6, 0.4])
+    contact = jnp.zeros_like(belief.evidence.contact)
+    evidence = belief.evidence.replace(contact=contact,
+                                       contact_valid=jnp.zeros_like(belief.evidence.contact_valid).at[0, 0].set(True))
+    T_object_reference = jax.vmap(lambda T: T @ FACE_SENSOR)(belief.T_object_reference)
+    return belief.replace(evidence=evidence, T_world_reference=FACE_SENSOR, T_object_reference=T_object_reference,
+                          calibration=belief.calibration.replace(found_offset=jnp.float32(found_offset),
+                                                                 found_slope=jnp.float32(found_slope)))
+
+
+def test_where_the_search_likely_missed_a_grasp_across_a_felt_contact_comes_first(gum_box):
+    view, grid = gum_box
+    # Near the top edge (it tells the two modes, 4 mm apart vertically, apart) and across the
+    # felt contact (closing along the box's 81 mm length, through the felt point: its end faces
+    # are the same at both modes).
+    candidates = stack([grasp(20.0, 18.0, yaw_deg=10.0), grasp(0.0, 0.0, yaw_deg=90.0)])
+    settings = ActiveSettings(hypotheses=2)
+    sure = next_grasp(view, grid, face_touch_belief(view, 20.0), candidates, settings)  # P(found) = 1
+    assert np.asarray(sure.across_felt).tolist() == [False, True]
+    np.testing.assert_allclose(np.asarray(sure.close_probability), np.asarray(sure.closes), atol=1e-6)
+    assert int(sure.order[0]) == 0 and float(sure.gain[0]) > float(sure.gain[1])
+    # P(found) = 0.2 now, 0.87 after one more grasp (3 touches): the grasp across the felt contact
+    # closes whatever the pose, and is likelier to leave the belief right.
+    lost = next_grasp(view, grid, face_touch_belief(view, -1.386, 3.0), candidates, settings)
+    np.testing.assert_allclose(np.asarray(lost.close_probability), [0.2, 1.0], atol=1e-3)
+    assert int(lost.order[0]) == 1
+
+
+def test_proposals_across_a_felt_contact_close_across_it(gum_box):
+    view, grid = gum_box
+    settings = ActiveSettings(hypotheses=2)
+    belief = face_touch_belief(view, 0.0)
+    poses, _ = propose_grasps(jax.random.key(1), view, grid, belief, 16, settings)
+    ranking = next_grasp(view, grid, belief, poses, settings)
+    assert np.all(np.asarray(ranking.across_felt)[:8])  # the first round(16 * across_felt)
+
+
+def test_the_predicted_clearance_is_the_jaws_distance_from_the_object(gum_box):
+    view, grid = gum_box
+    gel = tuple(n * view.mm_per_px for n in view.packed_heightmaps.shape[1:])
+    settings = ActiveSettings().prediction
+
+    def clearance(T_world_object, T_world_gripper):
+        return float(predict_grasp(grid, view.surface, T_world_object, T_world_gripper, gel, settings).clearance_mm)
+
+    # Open jaws 110 mm apart; the box 23 mm thick across its broad faces, 81 mm long.
+    assert clearance(shift(), grasp(0.0, 0.0)) == pytest.approx((110.0 - 23.0) / 2, abs=1.0)
+    assert clearance(shift(), grasp(0.0, 0.0, yaw_deg=90.0)) == pytest.approx((110.0 - 81.0) / 2, abs=1.0)
+    assert clearance(shift(y=20.0), grasp(0.0, 0.0)) == pytest.approx((110.0 - 23.0) / 2 - 20.0, abs=1.0)
+    # A jaw starting just inside the box's face (at y = 55 mm, the face at 55.5 mm). The map knows
+    # the surface only within 1.5 mm of it: a jaw starting deeper inside is not seen.
+    assert clearance(shift(y=44.0), grasp(0.0, 0.0)) == 0.0
