@@ -349,8 +349,8 @@ def propose_grasps(key: PRNGKeyArray, view: LocalizationMap, grid: MarchingGrid,
     protocol). Of ``oversample`` times as many draws as are kept, those predicted to close on
     the object at the pose they were drawn from are kept first. A share ``across_felt`` of the
     candidates (first) are instead drawn across a contact already felt (:func:`_across_felt`):
-    they close whatever the pose, which is what counts when the belief's search has likely
-    missed the truth (:func:`next_grasp`).
+    they touch the object whatever its pose, which is what counts when the belief's search has
+    likely missed the truth (:func:`next_grasp`).
 
     Returns:
         (C,) commanded gripper poses in the belief's world frame (mm), and whether each is
