@@ -44,7 +44,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from tactojax import _struct as struct
 from tactojax.geometry import take
-from tactojax.localize._belief import WITHIN_MM, PoseBelief, hypothesis_distances
+from tactojax.localize._belief import WITHIN_MM, PoseBelief, hypothesis_distances, reference_cloud
 from tactojax.localize._compile import top_level_jit
 from tactojax.localize._likelihood import LikelihoodSettings, log_likelihood
 from tactojax.localize._map import LocalizationMap
@@ -284,9 +284,9 @@ def next_grasp(view: LocalizationMap, grid: MarchingGrid, belief: PoseBelief, T_
     # prediction's own error rate, or below the chance that the modes are wrong, are none).
     # Among them, the expected objective: the gain where the search found the truth; where it
     # did not, a grasp that surely closes gives it another touch, and P(found) one grasp later.
-    found = belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2)
+    found = belief.found_probability()
     close_probability = found * closes + (1.0 - found) * across
-    found_after = belief.calibration.found_probability(belief.touches + settings.fingers, belief.mean_contact_mm2)
+    found_after = belief.found_probability(more_touches=settings.fingers)
     value = found * gain + (1.0 - found) * across * found_after
     tolerance = jnp.maximum(settings.predicted_close_misses, 1.0 - found)
     surest = close_probability >= jnp.max(close_probability) - tolerance
@@ -300,12 +300,10 @@ def felt_contacts(belief: PoseBelief) -> tuple[Float[Array, "N 3"], Float[Array,
     the object's surface is known to be whatever its pose; the pressing direction of the touch
     that felt each (its gel's normal, into the object: the closing axis of that grasp); and which
     are valid. (T * P, 3), (T * P, 3) and (T * P,)."""
-    T_world_touch = belief.T_world_reference @ belief.T_reference_touch  # (T,)
-    points = jax.vmap(lambda T, p: jax.vmap(lambda q: T @ q)(p))(T_world_touch, belief.evidence.contact)
-    pressing = jax.vmap(lambda T: T.rotation().as_matrix()[:, 2])(T_world_touch)
-    pressing = jnp.broadcast_to(pressing[:, None, :], points.shape)
-    valid = belief.evidence.contact_valid & belief.touch_valid[:, None]
-    return points.reshape(-1, 3), pressing.reshape(-1, 3), valid.reshape(-1)
+    points, valid = reference_cloud(belief)
+    points = jax.vmap(lambda q: belief.T_world_reference @ q)(points)
+    pressing = jax.vmap(lambda T: T.rotation().as_matrix()[:, 2])(belief.T_world_reference @ belief.T_reference_touch)
+    return points, jnp.repeat(pressing, belief.evidence.contact.shape[1], axis=0), valid
 
 
 def closes_across_felt(T_world_gripper: jaxlie.SE3, points: Float[Array, "N 3"], pressing: Float[Array, "N 3"],

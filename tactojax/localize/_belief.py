@@ -212,6 +212,12 @@ class PoseBelief:
         (:meth:`BeliefCalibration.found_probability`)."""
         return _probability_within(self, threshold_mm)
 
+    def found_probability(self, more_touches: int = 0) -> Float[Array, ""]:
+        """P(its hypotheses hold the truth's mode at all), given how many touches it holds and
+        their mean contact area (:meth:`BeliefCalibration.found_probability`); with
+        ``more_touches``, once that many more of the same area have joined them."""
+        return self.calibration.found_probability(self.touches + more_touches, self.mean_contact_mm2)
+
     def modes(self, separation_mm: float = WITHIN_MM) -> tuple[Int[Array, "M"], Float[Array, "M"]]:
         """Hypotheses grouped into modes (symmetric copies in one): each joins the most likely
         hypothesis within ``separation_mm`` of it. Returns (M,) the mode (a hypothesis index)
@@ -234,7 +240,7 @@ class PoseBelief:
 def _probability_within(belief: PoseBelief, threshold_mm: Float[Array, ""]) -> Float[Array, ""]:
     distance = hypothesis_distances(belief, belief.best, symmetric=True)
     near = jnp.sum(jnp.where(distance <= threshold_mm, belief.probabilities, 0.0))
-    return near * belief.calibration.found_probability(belief.touches, belief.mean_contact_mm2)
+    return near * belief.found_probability()
 
 
 @top_level_jit
